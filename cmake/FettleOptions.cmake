@@ -1,0 +1,41 @@
+# Compile options shared by every Fettle target, as interface targets: no global flags.
+
+# fettle::options - language level, warnings and sanitizers.
+add_library(fettle_options INTERFACE)
+add_library(fettle::options ALIAS fettle_options)
+target_compile_features(fettle_options INTERFACE cxx_std_20)
+
+target_compile_options(fettle_options INTERFACE
+  $<$<COMPILE_LANGUAGE:CXX>:-Wall -Wextra -Wpedantic -Wshadow -Wnon-virtual-dtor -Wold-style-cast
+                             -Wcast-align -Woverloaded-virtual -Wformat=2>)
+if(FETTLE_WERROR)
+  target_compile_options(fettle_options INTERFACE $<$<COMPILE_LANGUAGE:CXX>:-Werror>)
+endif()
+
+if(FETTLE_SANITIZE)
+  if(NOT FETTLE_SANITIZE MATCHES "^(address|undefined|address,undefined|undefined,address|thread)$")
+    message(FATAL_ERROR "FETTLE_SANITIZE='${FETTLE_SANITIZE}': use address,undefined or thread")
+  endif()
+  target_compile_options(fettle_options INTERFACE -fsanitize=${FETTLE_SANITIZE} -fno-omit-frame-pointer -fno-sanitize-recover=all)
+  target_link_options(fettle_options INTERFACE -fsanitize=${FETTLE_SANITIZE})
+endif()
+
+# Third-party headers are included as SYSTEM so their warnings do not drown ours.
+# (Never -march=native: Debian's PCL is built without it and misaligned Eigen types crash.)
+
+# fettle_library(NAME name SOURCES ... PUBLIC_LIBS ... PRIVATE_LIBS ...)
+# One library per top-level folder, with the alias fettle::<name> and include/ as its public headers.
+function(fettle_library)
+  cmake_parse_arguments(ARG "" "NAME" "SOURCES;PUBLIC_LIBS;PRIVATE_LIBS" ${ARGN})
+  if(ARG_SOURCES)
+    add_library(fettle_${ARG_NAME} STATIC ${ARG_SOURCES})
+    target_include_directories(fettle_${ARG_NAME} PUBLIC $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
+    target_link_libraries(fettle_${ARG_NAME} PUBLIC fettle::options ${ARG_PUBLIC_LIBS} PRIVATE ${ARG_PRIVATE_LIBS})
+    set_target_properties(fettle_${ARG_NAME} PROPERTIES POSITION_INDEPENDENT_CODE ON)
+  else()
+    add_library(fettle_${ARG_NAME} INTERFACE)
+    target_include_directories(fettle_${ARG_NAME} INTERFACE $<BUILD_INTERFACE:${CMAKE_CURRENT_SOURCE_DIR}/include>)
+    target_link_libraries(fettle_${ARG_NAME} INTERFACE fettle::options ${ARG_PUBLIC_LIBS})
+  endif()
+  add_library(fettle::${ARG_NAME} ALIAS fettle_${ARG_NAME})
+endfunction()

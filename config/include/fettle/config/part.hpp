@@ -1,0 +1,71 @@
+#pragma once
+// A part recipe (config/parts/*.toml): what the part is, where it sits, its regions
+// and how each is ground.
+#include <array>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace fettle::config {
+
+enum class RegionType { ring_flash, riser, straight_flash, circle_flash };
+enum class ToolShape { cylinder, ball, cone };
+
+const char* to_string(RegionType type);
+const char* to_string(ToolShape shape);
+
+struct Tool {
+  std::string name;
+  ToolShape shape = ToolShape::cylinder;
+  double diameter_mm = 50.0;
+  double length_mm = 10.0;
+  double cone_angle_deg = 0.0;                  ///< cone tools only
+  std::array<double, 3> tcp_mm{0.0, 0.0, 0.0};  ///< TCP in the flange frame
+};
+
+struct Region {
+  std::string name;
+  RegionType type = RegionType::ring_flash;
+  std::string tool;                                 ///< name of a [[tools]] entry
+  std::array<double, 3> roi_center_mm{0, 0, 0};     ///< ROI box centre in the part frame
+  std::array<double, 3> roi_size_mm{10, 10, 10};    ///< ROI box edge lengths
+  double feed_mm_s = 20.0;
+  double spindle_rpm = 6000.0;
+  double excess_threshold_mm = 0.2;   ///< material higher than this above the template is excess
+  double allowance_mm = 0.05;         ///< left above the template by the last pass
+  // ring_flash / circle_flash
+  double chamfer_deg = 45.0;
+  double point_spacing_mm = 1.0;
+  double overlap_mm = 5.0;
+  // riser
+  double depth_per_pass_mm = 1.0;
+  double stepover_mm = 5.0;
+  double margin_mm = 3.0;
+  // straight_flash
+  int passes = 1;
+};
+
+struct FixturePrior {
+  std::array<double, 3> position_mm{0, 0, 0};     ///< nominal part origin in the fixture frame
+  std::array<double, 3> rotation_deg{0, 0, 0};    ///< nominal part rotation (roll, pitch, yaw)
+  double position_tolerance_mm = 5.0;             ///< how far the real part may be from nominal
+  double rotation_tolerance_deg = 5.0;
+};
+
+struct TemplateSource {
+  std::string kind = "simulator";      ///< simulator (the simulator's golden part) | scan
+  std::filesystem::path scan;          ///< golden scan (PLY/PCD) when kind == scan
+  double voxel_mm = 0.5;
+};
+
+struct PartRecipe {
+  std::filesystem::path source;
+  std::string id;
+  std::string description;
+  TemplateSource template_source;
+  FixturePrior fixture;
+  std::vector<Tool> tools;
+  std::vector<Region> regions;
+};
+
+}  // namespace fettle::config

@@ -1,0 +1,291 @@
+#include "fettle/config/load.hpp"
+
+#include <algorithm>
+#include <limits>
+#include <tuple>
+#include <set>
+
+#include "fettle/core/log.hpp"
+#include "reader.hpp"
+
+namespace fettle::config {
+
+using detail::Need;
+using detail::Range;
+using detail::Report;
+using detail::TableReader;
+
+const char* to_string(RegionType type) {
+  switch (type) {
+    case RegionType::ring_flash: return "ring_flash";
+    case RegionType::riser: return "riser";
+    case RegionType::straight_flash: return "straight_flash";
+    case RegionType::circle_flash: return "circle_flash";
+  }
+  return "?";
+}
+
+const char* to_string(ToolShape shape) {
+  switch (shape) {
+    case ToolShape::cylinder: return "cylinder";
+    case ToolShape::ball: return "ball";
+    case ToolShape::cone: return "cone";
+  }
+  return "?";
+}
+
+namespace {
+
+constexpr long long kMaxMs = 24LL * 3600 * 1000;
+constexpr Range<long long> kTimeoutMs{1, kMaxMs};
+constexpr Range<double> kCoordMm{-1e5, 1e5};
+
+std::string check_level(const std::string& s) {
+  if (log::is_level_name(s)) return "";
+  std::string allowed;
+  for (const auto& n : log::level_names()) allowed += (allowed.empty() ? "" : ", ") + n;
+  return "\"" + s + "\" is not a log level (allowed: " + allowed + ")";
+}
+
+void read_cell_section(TableReader& t, CellSection& c) {
+  t.string("name", c.name, Need::required);
+  t.path("state_dir", c.state_dir);
+  t.integer("workers", c.workers, {0, 256});
+  t.boolean("verification_scan", c.verification_scan);
+  std::set<int> ids;
+  t.tables("recipes", [&](TableReader& r, std::size_t) {
+    RecipeRef ref;
+    r.integer("plc_recipe_id", ref.plc_recipe_id, {1, 65535}, Need::required);
+    r.path("file", ref.file, Need::required, /*must_exist=*/true);
+    if (ref.plc_recipe_id != 0 && !ids.insert(ref.plc_recipe_id).second)
+      r.error("plc_recipe_id", "recipe id " + std::to_string(ref.plc_recipe_id) + " is used twice");
+    c.recipes.push_back(ref);
+  });
+}
+
+void read_cell(TableReader& root, CellConfig& cfg) {
+  if (auto t = root.table("cell", Need::required)) read_cell_section(*t, cfg.cell);
+  if (auto t = root.table("logging")) {
+    t->choice("level", cfg.logging.level, log::level_names());
+    t->string_map("components", cfg.logging.components, check_level);
+  }
+  if (auto t = root.table("plc", Need::required)) {
+    auto& p = cfg.plc;
+    t->ipv4("address", p.address, Need::required);
+    t->port("port", p.port);
+    t->integer("unit_id", p.unit_id, {0, 247});
+    t->integer("register_base", p.register_base, {0, 65535 - 64});
+    t->integer("response_timeout_ms", p.response_timeout_ms, {1, 60000});
+    t->integer("poll_period_ms", p.poll_period_ms, {1, 10000});
+    t->integer("heartbeat_timeout_ms", p.heartbeat_timeout_ms, {10, 60000});
+    t->integer("reconnect_initial_ms", p.reconnect_initial_ms, {1, 60000});
+    t->integer("reconnect_max_ms", p.reconnect_max_ms, {1, 600000});
+    if (p.reconnect_initial_ms > p.reconnect_max_ms)
+      t->error("reconnect_max_ms", "must be at least reconnect_initial_ms (" +
+                                       std::to_string(p.reconnect_initial_ms) + ")");
+  }
+  if (auto t = root.table("slide", Need::required)) {
+    t->numbers("photo_positions_mm", cfg.slide.photo_positions_mm, {-10000.0, 10000.0}, 1, 16, Need::required);
+    t->integer("travel_timeout_ms", cfg.slide.travel_timeout_ms, kTimeoutMs);
+  }
+  if (auto t = root.table("camera", Need::required)) {
+    auto& c = cfg.camera;
+    const bool by_address = t->has("address");
+    const bool by_serial = t->has("serial");
+    t->ipv4("address", c.address);
+    t->string("serial", c.serial);
+    if (!by_address && !by_serial) t->error("address", "set the camera's address (IPv4) or its serial number");
+    if (by_address && by_serial) t->error("serial", "set either address or serial, not both");
+    t->integer("frame_timeout_ms", c.frame_timeout_ms, kTimeoutMs);
+    t->integer("retries", c.retries, {0, 100});
+    t->number("exposure_us", c.exposure_us, {1.0, 10e6});
+  }
+  if (auto t = root.table("robot", Need::required)) {
+    auto& r = cfg.robot;
+    t->ipv4("address", r.address, Need::required);
+    t->port("port", r.port, Need::required);
+    t->string("cell_id", r.cell_id, Need::required);
+    t->integer("reply_timeout_ms", r.reply_timeout_ms, kTimeoutMs);
+    t->integer("ping_period_ms", r.ping_period_ms, {10, 60000});
+    t->integer("missed_pings", r.missed_pings, {1, 100});
+    t->integer("chunk_points", r.chunk_points, {1, 1000});
+    t->integer("run_timeout_ms", r.run_timeout_ms, kTimeoutMs);
+  }
+  if (auto t = root.table("spindle", Need::required)) {
+    auto& s = cfg.spindle;
+    t->choice("transport", s.transport, {"socketcan", "sim"});
+    t->string("interface", s.interface);
+    t->integer("node_id", s.node_id, {1, 127});
+    t->choice("mode", s.mode, {"profile_velocity", "velocity"});
+    t->integer("heartbeat_producer_ms", s.heartbeat_producer_ms, {1, 65535});
+    t->integer("heartbeat_timeout_ms", s.heartbeat_timeout_ms, {1, 65535});
+    t->integer("sdo_timeout_ms", s.sdo_timeout_ms, {1, 60000});
+    t->integer("spin_up_timeout_ms", s.spin_up_timeout_ms, kTimeoutMs);
+    t->number("at_speed_tolerance_rpm", s.at_speed_tolerance_rpm, {0.1, 10000.0});
+    t->number("max_rpm", s.max_rpm, {1.0, 100000.0});
+    if (s.heartbeat_timeout_ms <= s.heartbeat_producer_ms)
+      t->error("heartbeat_timeout_ms", "must be longer than heartbeat_producer_ms (" +
+                                           std::to_string(s.heartbeat_producer_ms) + ")");
+  }
+  if (auto t = root.table("safety", Need::required)) {
+    auto& s = cfg.safety;
+    t->vec3("workspace_min_mm", s.workspace_min_mm, kCoordMm, Need::required);
+    t->vec3("workspace_max_mm", s.workspace_max_mm, kCoordMm, Need::required);
+    for (int i = 0; i < 3; ++i) {
+      if (s.workspace_min_mm[static_cast<std::size_t>(i)] >= s.workspace_max_mm[static_cast<std::size_t>(i)]) {
+        t->error("workspace_max_mm", "must be greater than workspace_min_mm on every axis (axis " +
+                                         std::string(1, static_cast<char>('x' + i)) + " is not)");
+        break;
+      }
+    }
+    t->number("tool_axis_cone_deg", s.tool_axis_cone_deg, {0.0, 180.0});
+    t->number("max_speed_mm_s", s.max_speed_mm_s, {0.1, 5000.0});
+    t->number("max_spindle_rpm", s.max_spindle_rpm, {1.0, 100000.0});
+    t->number("safe_height_mm", s.safe_height_mm, {0.0, 2000.0});
+  }
+  if (auto t = root.table("control")) t->path("socket", cfg.control.socket);
+  if (auto t = root.table("records")) {
+    t->integer("keep_cycles", cfg.records.keep_cycles, {1, 10000000});
+    t->number("keep_mb", cfg.records.keep_mb, {1.0, 1e9});
+  }
+}
+
+void read_part(TableReader& root, PartRecipe& part) {
+  if (auto t = root.table("part", Need::required)) {
+    t->string("id", part.id, Need::required);
+    t->string("description", part.description, Need::optional, true);
+  }
+  if (auto t = root.table("template", Need::required)) {
+    t->choice("source", part.template_source.kind, {"simulator", "scan"}, Need::required);
+    if (part.template_source.kind == "scan") t->path("scan", part.template_source.scan, Need::required, true);
+    t->number("voxel_mm", part.template_source.voxel_mm, {0.01, 50.0});
+  }
+  if (auto t = root.table("fixture")) {
+    auto& f = part.fixture;
+    t->vec3("position_mm", f.position_mm, kCoordMm);
+    t->vec3("rotation_deg", f.rotation_deg, {-180.0, 180.0});
+    t->number("position_tolerance_mm", f.position_tolerance_mm, {0.0, 500.0});
+    t->number("rotation_tolerance_deg", f.rotation_tolerance_deg, {0.0, 180.0});
+  }
+  std::set<std::string> tool_names;
+  root.tables(
+      "tools",
+      [&](TableReader& t, std::size_t) {
+        Tool tool;
+        t.string("name", tool.name, Need::required);
+        t.enumeration("shape", tool.shape,
+                      {{"cylinder", ToolShape::cylinder}, {"ball", ToolShape::ball}, {"cone", ToolShape::cone}},
+                      Need::required);
+        t.number("diameter_mm", tool.diameter_mm, {0.1, 500.0}, Need::required);
+        t.number("length_mm", tool.length_mm, {0.1, 500.0});
+        if (tool.shape == ToolShape::cone) t.number("cone_angle_deg", tool.cone_angle_deg, {1.0, 89.0}, Need::required);
+        t.vec3("tcp_mm", tool.tcp_mm, {-2000.0, 2000.0});
+        if (!tool.name.empty() && !tool_names.insert(tool.name).second)
+          t.error("name", "tool \"" + tool.name + "\" is defined twice");
+        part.tools.push_back(tool);
+      },
+      Need::required);
+  std::set<std::string> region_names;
+  root.tables(
+      "regions",
+      [&](TableReader& t, std::size_t) {
+        Region r;
+        t.string("name", r.name, Need::required);
+        t.enumeration("type", r.type,
+                      {{"ring_flash", RegionType::ring_flash},
+                       {"riser", RegionType::riser},
+                       {"straight_flash", RegionType::straight_flash},
+                       {"circle_flash", RegionType::circle_flash}},
+                      Need::required);
+        t.string("tool", r.tool, Need::required);
+        if (!r.tool.empty() && !tool_names.contains(r.tool))
+          t.error("tool", "no [[tools]] entry is named \"" + r.tool + "\"");
+        t.vec3("roi_center_mm", r.roi_center_mm, kCoordMm, Need::required);
+        t.vec3("roi_size_mm", r.roi_size_mm, {0.1, 5000.0}, Need::required);
+        t.number("feed_mm_s", r.feed_mm_s, {0.1, 1000.0});
+        t.number("spindle_rpm", r.spindle_rpm, {100.0, 100000.0});
+        t.number("excess_threshold_mm", r.excess_threshold_mm, {0.0, 50.0});
+        t.number("allowance_mm", r.allowance_mm, {0.0, 10.0});
+        // Keys of one region type are unknown for the others: a misplaced key is an error.
+        switch (r.type) {
+          case RegionType::ring_flash:
+          case RegionType::circle_flash:
+            t.number("chamfer_deg", r.chamfer_deg, {5.0, 85.0});
+            t.number("point_spacing_mm", r.point_spacing_mm, {0.05, 1.0});
+            t.number("overlap_mm", r.overlap_mm, {0.0, 100.0});
+            break;
+          case RegionType::riser:
+            t.number("depth_per_pass_mm", r.depth_per_pass_mm, {0.01, 20.0});
+            t.number("stepover_mm", r.stepover_mm, {0.1, 100.0});
+            t.number("margin_mm", r.margin_mm, {0.0, 100.0});
+            break;
+          case RegionType::straight_flash:
+            t.integer("passes", r.passes, {1, 50});
+            t.number("point_spacing_mm", r.point_spacing_mm, {0.05, 1.0});
+            break;
+        }
+        if (!r.name.empty() && !region_names.insert(r.name).second)
+          t.error("name", "region \"" + r.name + "\" is defined twice");
+        part.regions.push_back(r);
+      },
+      Need::required);
+}
+
+template <class Config, class ReadFn>
+std::vector<Diagnostic> read_file(const std::filesystem::path& file, Config& cfg, ReadFn read) {
+  Report report(file.string());
+  auto table = detail::parse_file(file, report);
+  if (table) {
+    cfg.source = std::filesystem::absolute(file).lexically_normal();
+    TableReader root(*table, "", report, cfg.source.parent_path());
+    read(root, cfg);
+    root.finish();
+  }
+  auto d = report.diagnostics();
+  std::stable_sort(d.begin(), d.end(), [](const Diagnostic& a, const Diagnostic& b) {
+    return std::tie(a.line, a.column) < std::tie(b.line, b.column);
+  });
+  return d;
+}
+
+}  // namespace
+
+CellConfig load_cell(const std::filesystem::path& file) {
+  CellConfig cfg;
+  if (auto d = read_file(file, cfg, read_cell); !d.empty()) throw ConfigError(std::move(d));
+  return cfg;
+}
+
+PartRecipe load_part(const std::filesystem::path& file) {
+  PartRecipe part;
+  if (auto d = read_file(file, part, read_part); !d.empty()) throw ConfigError(std::move(d));
+  return part;
+}
+
+std::vector<Diagnostic> check_file(const std::filesystem::path& file, FileKind kind) {
+  if (kind == FileKind::automatic) {
+    kind = FileKind::cell;
+    try {
+      if (toml::parse_file(file.string()).contains("part")) kind = FileKind::part;
+    } catch (const std::exception&) {
+      // Syntax errors and missing files are reported by the reader below.
+    }
+  }
+  if (kind == FileKind::part) {
+    PartRecipe part;
+    return read_file(file, part, read_part);
+  }
+  CellConfig cfg;
+  auto diagnostics = read_file(file, cfg, read_cell);
+  // A cell file is only valid if the recipes it names are.
+  if (diagnostics.empty()) {
+    for (const auto& r : cfg.cell.recipes) {
+      PartRecipe part;
+      auto d = read_file(r.file, part, read_part);
+      diagnostics.insert(diagnostics.end(), d.begin(), d.end());
+    }
+  }
+  return diagnostics;
+}
+
+}  // namespace fettle::config

@@ -1,0 +1,354 @@
+#include "reader.hpp"
+
+#include <arpa/inet.h>
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+namespace fettle::config {
+
+std::string Diagnostic::to_string() const {
+  std::ostringstream s;
+  s << file;
+  if (line > 0) s << ':' << line << ':' << column;
+  s << ": ";
+  if (!key.empty()) s << "key '" << key << "': ";
+  s << message;
+  return s.str();
+}
+
+namespace {
+std::string join(const std::vector<Diagnostic>& d) {
+  std::string out;
+  for (const auto& x : d) out += (out.empty() ? "" : "\n") + x.to_string();
+  return out;
+}
+}  // namespace
+
+ConfigError::ConfigError(std::vector<Diagnostic> diagnostics)
+    : UserError(join(diagnostics)), diagnostics_(std::move(diagnostics)) {}
+
+}  // namespace fettle::config
+
+namespace fettle::config::detail {
+namespace {
+
+std::size_t edit_distance(std::string_view a, std::string_view b) {
+  std::vector<std::size_t> prev(b.size() + 1), cur(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) prev[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    cur[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t sub = prev[j - 1] + (a[i - 1] == b[j - 1] ? 0 : 1);
+      cur[j] = std::min({prev[j] + 1, cur[j - 1] + 1, sub});
+    }
+    std::swap(prev, cur);
+  }
+  return prev[b.size()];
+}
+
+std::string join_names(const std::vector<std::string>& names) {
+  std::string out;
+  for (const auto& n : names) out += (out.empty() ? "" : ", ") + n;
+  return out;
+}
+
+template <class T>
+std::string num(T v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+}  // namespace
+
+void Report::add(const toml::source_region& where, std::string key, std::string message) {
+  items_.push_back(Diagnostic{file_, static_cast<int>(where.begin.line), static_cast<int>(where.begin.column),
+                              std::move(key), std::move(message)});
+}
+
+void Report::add_file(std::string message) { items_.push_back(Diagnostic{file_, 0, 0, "", std::move(message)}); }
+
+std::string describe(const toml::node& node) {
+  switch (node.type()) {
+    case toml::node_type::string: return "string \"" + std::string(*node.value<std::string_view>()) + "\"";
+    case toml::node_type::integer: return "integer " + num(*node.value<int64_t>());
+    case toml::node_type::floating_point: return "float " + num(*node.value<double>());
+    case toml::node_type::boolean: return std::string("boolean ") + (*node.value<bool>() ? "true" : "false");
+    case toml::node_type::table: return "a table";
+    case toml::node_type::array: return "an array";
+    case toml::node_type::date: return "a date";
+    case toml::node_type::time: return "a time";
+    case toml::node_type::date_time: return "a date-time";
+    default: return "nothing";
+  }
+}
+
+std::optional<toml::table> parse_file(const std::filesystem::path& file, Report& report) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(file, ec)) {
+    report.add_file(std::filesystem::exists(file, ec) ? "not a regular file" : "no such file");
+    return std::nullopt;
+  }
+  try {
+    return toml::parse_file(file.string());
+  } catch (const toml::parse_error& e) {
+    report.add(e.source(), "", "TOML syntax error: " + std::string(e.description()));
+    return std::nullopt;
+  }
+}
+
+TableReader::TableReader(const toml::table& table, std::string path, Report& report, std::filesystem::path base_dir)
+    : table_(&table), path_(std::move(path)), report_(&report), base_dir_(std::move(base_dir)) {}
+
+TableReader::TableReader(TableReader&& other) noexcept
+    : table_(other.table_),
+      path_(std::move(other.path_)),
+      report_(other.report_),
+      base_dir_(std::move(other.base_dir_)),
+      known_(std::move(other.known_)),
+      finished_(other.finished_) {
+  other.finished_ = true;
+}
+
+TableReader::~TableReader() { finish(); }
+
+bool TableReader::has(std::string_view key) const { return table_->contains(key); }
+
+std::string TableReader::key_path(std::string_view key) const {
+  return path_.empty() ? std::string(key) : path_ + "." + std::string(key);
+}
+
+void TableReader::error(std::string_view key, std::string message) {
+  const toml::node* node = table_->get(key);
+  report_->add(node != nullptr ? node->source() : table_->source(), key_path(key), std::move(message));
+}
+
+const toml::node* TableReader::lookup(std::string_view key, Need need) {
+  known_.emplace(key);
+  const toml::node* node = table_->get(key);
+  if (node == nullptr && need == Need::required) {
+    report_->add(table_->source(), key_path(key),
+                 "missing; this key is required" + (path_.empty() ? std::string() : " in [" + path_ + "]"));
+  }
+  return node;
+}
+
+void TableReader::type_error(std::string_view key, const toml::node& node, std::string_view expected) {
+  report_->add(node.source(), key_path(key), "must be " + std::string(expected) + ", got " + describe(node));
+}
+
+void TableReader::integer(std::string_view key, int& out, Range<long long> range, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const auto v = node->value_exact<int64_t>();
+  if (!v) return type_error(key, *node, "an integer");
+  if (*v < range.min || *v > range.max) {
+    report_->add(node->source(), key_path(key),
+                 "value " + num(*v) + " is out of range (allowed " + num(range.min) + " to " + num(range.max) + ")");
+    return;
+  }
+  out = static_cast<int>(*v);
+}
+
+void TableReader::number(std::string_view key, double& out, Range<double> range, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  std::optional<double> v;
+  if (node->is_floating_point()) v = node->value_exact<double>();
+  if (node->is_integer()) v = static_cast<double>(*node->value_exact<int64_t>());
+  if (!v) return type_error(key, *node, "a number");
+  if (!std::isfinite(*v) || *v < range.min || *v > range.max) {
+    report_->add(node->source(), key_path(key),
+                 "value " + num(*v) + " is out of range (allowed " + num(range.min) + " to " + num(range.max) + ")");
+    return;
+  }
+  out = *v;
+}
+
+void TableReader::boolean(std::string_view key, bool& out, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const auto v = node->value_exact<bool>();
+  if (!v) return type_error(key, *node, "true or false");
+  out = *v;
+}
+
+void TableReader::string(std::string_view key, std::string& out, Need need, bool allow_empty) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const auto v = node->value_exact<std::string>();
+  if (!v) return type_error(key, *node, "a string");
+  if (!allow_empty && v->empty()) {
+    report_->add(node->source(), key_path(key), "must not be empty");
+    return;
+  }
+  out = *v;
+}
+
+void TableReader::choice(std::string_view key, std::string& out, const std::vector<std::string>& allowed,
+                         Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const auto v = node->value_exact<std::string>();
+  if (!v) return type_error(key, *node, "one of: " + join_names(allowed));
+  if (std::find(allowed.begin(), allowed.end(), *v) == allowed.end()) {
+    report_->add(node->source(), key_path(key), "\"" + *v + "\" is not allowed (allowed: " + join_names(allowed) + ")");
+    return;
+  }
+  out = *v;
+}
+
+void TableReader::ipv4(std::string_view key, std::string& out, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const auto v = node->value_exact<std::string>();
+  if (!v) return type_error(key, *node, "an IPv4 address string such as \"192.168.10.20\"");
+  in_addr addr{};
+  if (::inet_pton(AF_INET, v->c_str(), &addr) != 1) {
+    report_->add(node->source(), key_path(key),
+                 "\"" + *v + "\" is not an IPv4 address (expected four numbers 0-255 such as \"192.168.10.20\")");
+    return;
+  }
+  out = *v;
+}
+
+void TableReader::port(std::string_view key, int& out, Need need, bool allow_zero) {
+  integer(key, out, {allow_zero ? 0 : 1, 65535}, need);
+}
+
+void TableReader::path(std::string_view key, std::filesystem::path& out, Need need, bool must_exist) {
+  std::string s;
+  string(key, s, need);
+  if (s.empty()) return;
+  std::filesystem::path p(s);
+  if (p.is_relative()) p = base_dir_ / p;
+  p = p.lexically_normal();
+  std::error_code ec;
+  if (must_exist && !std::filesystem::exists(p, ec)) {
+    error(key, "file \"" + p.string() + "\" does not exist");
+    return;
+  }
+  out = p;
+}
+
+void TableReader::vec3(std::string_view key, std::array<double, 3>& out, Range<double> range, Need need) {
+  std::vector<double> v(out.begin(), out.end());
+  const std::size_t before = report_->diagnostics().size();
+  numbers(key, v, range, 3, 3, need);
+  if (report_->diagnostics().size() == before && v.size() == 3) std::copy(v.begin(), v.end(), out.begin());
+}
+
+void TableReader::numbers(std::string_view key, std::vector<double>& out, Range<double> range, std::size_t min_count,
+                          std::size_t max_count, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const toml::array* arr = node->as_array();
+  const std::string expected = min_count == max_count ? "an array of " + num(min_count) + " numbers"
+                                                      : "an array of " + num(min_count) + " to " + num(max_count) +
+                                                            " numbers";
+  if (arr == nullptr) return type_error(key, *node, expected);
+  if (arr->size() < min_count || arr->size() > max_count) {
+    report_->add(node->source(), key_path(key), "must be " + expected + ", got " + num(arr->size()));
+    return;
+  }
+  std::vector<double> values;
+  bool ok = true;
+  for (std::size_t i = 0; i < arr->size(); ++i) {
+    const toml::node& e = *arr->get(i);
+    std::optional<double> v;
+    if (e.is_floating_point()) v = e.value_exact<double>();
+    if (e.is_integer()) v = static_cast<double>(*e.value_exact<int64_t>());
+    const std::string item = key_path(key) + "[" + num(i) + "]";
+    if (!v) {
+      report_->add(e.source(), item, "must be a number, got " + describe(e));
+      ok = false;
+    } else if (!std::isfinite(*v) || *v < range.min || *v > range.max) {
+      report_->add(e.source(), item,
+                   "value " + num(*v) + " is out of range (allowed " + num(range.min) + " to " + num(range.max) + ")");
+      ok = false;
+    } else {
+      values.push_back(*v);
+    }
+  }
+  if (ok) out = std::move(values);
+}
+
+void TableReader::string_map(std::string_view key, std::map<std::string, std::string>& out,
+                             const std::function<std::string(const std::string&)>& valid, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const toml::table* t = node->as_table();
+  if (t == nullptr) return type_error(key, *node, "a table");
+  for (const auto& [k, v] : *t) {
+    const std::string item = key_path(key) + "." + std::string(k.str());
+    const auto s = v.value_exact<std::string>();
+    if (!s) {
+      report_->add(v.source(), item, "must be a string, got " + describe(v));
+      continue;
+    }
+    if (std::string msg = valid(*s); !msg.empty()) {
+      report_->add(v.source(), item, msg);
+      continue;
+    }
+    out[std::string(k.str())] = *s;
+  }
+}
+
+std::optional<TableReader> TableReader::table(std::string_view key, Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return std::nullopt;
+  const toml::table* t = node->as_table();
+  if (t == nullptr) {
+    type_error(key, *node, "a table");
+    return std::nullopt;
+  }
+  return TableReader(*t, key_path(key), *report_, base_dir_);
+}
+
+void TableReader::tables(std::string_view key, const std::function<void(TableReader&, std::size_t)>& each,
+                         Need need) {
+  const toml::node* node = lookup(key, need);
+  if (node == nullptr) return;
+  const toml::array* arr = node->as_array();
+  if (arr == nullptr) return type_error(key, *node, "an array of tables ([[" + key_path(key) + "]])");
+  for (std::size_t i = 0; i < arr->size(); ++i) {
+    const toml::node& e = *arr->get(i);
+    const toml::table* t = e.as_table();
+    const std::string item = key_path(key) + "[" + num(i) + "]";
+    if (t == nullptr) {
+      report_->add(e.source(), item, "must be a table, got " + describe(e));
+      continue;
+    }
+    TableReader r(*t, item, *report_, base_dir_);
+    each(r, i);
+  }
+}
+
+void TableReader::finish() {
+  if (finished_) return;
+  finished_ = true;
+  std::vector<std::string> allowed(known_.begin(), known_.end());
+  for (const auto& [k, v] : *table_) {
+    const std::string_view name = k.str();
+    if (known_.contains(name)) continue;
+    std::string message = "unknown key";
+    std::string best;
+    std::size_t best_d = 3;  // suggest only close matches
+    for (const auto& a : allowed) {
+      const std::size_t d = edit_distance(name, a);
+      if (d < best_d) {
+        best_d = d;
+        best = a;
+      }
+    }
+    if (!best.empty()) message += " (did you mean '" + best + "'?)";
+    message += allowed.empty() ? "; this table takes no keys" : "; allowed here: " + join_names(allowed);
+    // Report at the key itself where toml++ knows it, else at its value.
+    const toml::source_region& where = k.source().begin.line > 0 ? k.source() : v.source();
+    report_->add(where, key_path(name), message);
+  }
+}
+
+}  // namespace fettle::config::detail
