@@ -1,10 +1,18 @@
 #pragma once
 // What the three programs (fettle, fettled, fettle-sim) share on the command line.
+//
+// Subcommands register themselves: each command file of a program defines
+//   FETTLE_COMMAND("config", [](CLI::App& app, const fettle::cli::Common&) { ... });
+// (see fettle::cli::Command and daemon/cli/config_command.cpp), so adding a command
+// never edits main().
+#include <algorithm>
 #include <exception>
 #include <functional>
 #include <iostream>
 #include <optional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <CLI/CLI.hpp>
 
@@ -13,6 +21,30 @@
 #include "fettle/core/log.hpp"
 
 namespace fettle::cli {
+
+/// Options every command sees.
+struct Common {
+  std::optional<std::string> log_level;  ///< --log-level, overrides config levels
+};
+
+/// A registered command: `setup` adds its subcommand(s) to the program and returns, for
+/// each subcommand it added, the function to run when that subcommand is chosen.
+struct Command {
+  using Runner = std::function<int()>;
+  using Setup = std::function<std::vector<std::pair<CLI::App*, Runner>>(CLI::App& app, const Common& common)>;
+  std::string name;
+  Setup setup;
+};
+
+inline std::vector<Command>& registry() {
+  static std::vector<Command> commands;
+  return commands;
+}
+
+inline bool register_command(std::string name, Command::Setup setup) {
+  registry().push_back(Command{std::move(name), std::move(setup)});
+  return true;
+}
 
 /// Adds --log-level (overrides every component's level from the config).
 inline CLI::Option* add_log_level(CLI::App& app, std::optional<std::string>& level) {
@@ -23,7 +55,7 @@ inline CLI::Option* add_log_level(CLI::App& app, std::optional<std::string>& lev
       ->check(CLI::IsMember(log::level_names()));
 }
 
-/// Parses the command line and runs the chosen command, mapping failures to exit codes:
+/// Parses the command line and runs `body`, mapping failures to exit codes:
 /// 0 ok, 1 failure the user can fix, 2 usage, 3 device, 4 internal (a bug).
 inline int run(CLI::App& app, int argc, char** argv, const std::function<int()>& body) {
   try {
@@ -31,6 +63,8 @@ inline int run(CLI::App& app, int argc, char** argv, const std::function<int()>&
   } catch (const CLI::CallForHelp& e) {
     return app.exit(e);
   } catch (const CLI::CallForAllHelp& e) {
+    return app.exit(e);
+  } catch (const CLI::CallForVersion& e) {
     return app.exit(e);
   } catch (const CLI::ParseError& e) {
     (void)app.exit(e);
@@ -50,4 +84,38 @@ inline int run(CLI::App& app, int argc, char** argv, const std::function<int()>&
   }
 }
 
+/// main() of a program made of registered commands.
+inline int main_with_commands(const std::string& name, const std::string& description, const std::string& version,
+                              int argc, char** argv) {
+  CLI::App app{description, name};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", name + " " + version);
+  Common common;
+  add_log_level(app, common.log_level);
+  auto commands = registry();
+  std::sort(commands.begin(), commands.end(), [](const Command& a, const Command& b) { return a.name < b.name; });
+  std::vector<std::pair<CLI::App*, Command::Runner>> runners;
+  for (const auto& c : commands) {
+    auto added = c.setup(app, common);
+    runners.insert(runners.end(), added.begin(), added.end());
+  }
+  return run(app, argc, argv, [&]() -> int {
+    log::Options log_options;
+    log_options.program = name;
+    log_options.override_level = common.log_level;
+    log::init(log_options);
+    for (const auto& [sub, runner] : runners)
+      if (sub->parsed()) return runner();
+    std::cerr << name << ": choose a subcommand (see --help)\n";
+    return exit_code::usage;
+  });
+}
+
 }  // namespace fettle::cli
+
+#define FETTLE_CLI_CONCAT_(a, b) a##b
+#define FETTLE_CLI_CONCAT(a, b) FETTLE_CLI_CONCAT_(a, b)
+/// Registers a command of the program this file is linked into.
+#define FETTLE_COMMAND(name, ...)                                           \
+  static const bool FETTLE_CLI_CONCAT(fettle_command_registered_, __LINE__) = \
+      ::fettle::cli::register_command(name, __VA_ARGS__)
