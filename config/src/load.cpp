@@ -2,11 +2,12 @@
 
 #include <algorithm>
 #include <limits>
-#include <tuple>
 #include <set>
+#include <tuple>
 
 #include "fettle/core/log.hpp"
 #include "reader.hpp"
+#include "sections.hpp"
 
 namespace fettle::config {
 
@@ -17,28 +18,32 @@ using detail::TableReader;
 
 const char* to_string(RegionType type) {
   switch (type) {
-    case RegionType::ring_flash: return "ring_flash";
-    case RegionType::riser: return "riser";
-    case RegionType::straight_flash: return "straight_flash";
-    case RegionType::circle_flash: return "circle_flash";
+    case RegionType::ring_flash:
+      return "ring_flash";
+    case RegionType::riser:
+      return "riser";
+    case RegionType::straight_flash:
+      return "straight_flash";
+    case RegionType::circle_flash:
+      return "circle_flash";
   }
   return "?";
 }
 
 const char* to_string(ToolShape shape) {
   switch (shape) {
-    case ToolShape::cylinder: return "cylinder";
-    case ToolShape::ball: return "ball";
-    case ToolShape::cone: return "cone";
+    case ToolShape::cylinder:
+      return "cylinder";
+    case ToolShape::ball:
+      return "ball";
+    case ToolShape::cone:
+      return "cone";
   }
   return "?";
 }
 
 namespace {
-
-constexpr long long kMaxMs = 24LL * 3600 * 1000;
-constexpr Range<long long> kTimeoutMs{1, kMaxMs};
-constexpr Range<double> kCoordMm{-1e5, 1e5};
+using namespace detail;  // NOLINT(google-build-using-namespace)
 
 std::string check_level(const std::string& s) {
   if (log::is_level_name(s)) return "";
@@ -69,64 +74,11 @@ void read_cell(TableReader& root, CellConfig& cfg) {
     t->choice("level", cfg.logging.level, log::level_names());
     t->string_map("components", cfg.logging.components, check_level);
   }
-  if (auto t = root.table("plc", Need::required)) {
-    auto& p = cfg.plc;
-    t->ipv4("address", p.address, Need::required);
-    t->port("port", p.port);
-    t->integer("unit_id", p.unit_id, {0, 247});
-    t->integer("register_base", p.register_base, {0, 65535 - 64});
-    t->integer("response_timeout_ms", p.response_timeout_ms, {1, 60000});
-    t->integer("poll_period_ms", p.poll_period_ms, {1, 10000});
-    t->integer("heartbeat_timeout_ms", p.heartbeat_timeout_ms, {10, 60000});
-    t->integer("reconnect_initial_ms", p.reconnect_initial_ms, {1, 60000});
-    t->integer("reconnect_max_ms", p.reconnect_max_ms, {1, 600000});
-    if (p.reconnect_initial_ms > p.reconnect_max_ms)
-      t->error("reconnect_max_ms", "must be at least reconnect_initial_ms (" +
-                                       std::to_string(p.reconnect_initial_ms) + ")");
-  }
-  if (auto t = root.table("slide", Need::required)) {
-    t->numbers("photo_positions_mm", cfg.slide.photo_positions_mm, {-10000.0, 10000.0}, 1, 16, Need::required);
-    t->integer("travel_timeout_ms", cfg.slide.travel_timeout_ms, kTimeoutMs);
-  }
-  if (auto t = root.table("camera", Need::required)) {
-    auto& c = cfg.camera;
-    const bool by_address = t->has("address");
-    const bool by_serial = t->has("serial");
-    t->ipv4("address", c.address);
-    t->string("serial", c.serial);
-    if (!by_address && !by_serial) t->error("address", "set the camera's address (IPv4) or its serial number");
-    if (by_address && by_serial) t->error("serial", "set either address or serial, not both");
-    t->integer("frame_timeout_ms", c.frame_timeout_ms, kTimeoutMs);
-    t->integer("retries", c.retries, {0, 100});
-    t->number("exposure_us", c.exposure_us, {1.0, 10e6});
-  }
-  if (auto t = root.table("robot", Need::required)) {
-    auto& r = cfg.robot;
-    t->ipv4("address", r.address, Need::required);
-    t->port("port", r.port, Need::required);
-    t->string("cell_id", r.cell_id, Need::required);
-    t->integer("reply_timeout_ms", r.reply_timeout_ms, kTimeoutMs);
-    t->integer("ping_period_ms", r.ping_period_ms, {10, 60000});
-    t->integer("missed_pings", r.missed_pings, {1, 100});
-    t->integer("chunk_points", r.chunk_points, {1, 1000});
-    t->integer("run_timeout_ms", r.run_timeout_ms, kTimeoutMs);
-  }
-  if (auto t = root.table("spindle", Need::required)) {
-    auto& s = cfg.spindle;
-    t->choice("transport", s.transport, {"socketcan", "sim"});
-    t->string("interface", s.interface);
-    t->integer("node_id", s.node_id, {1, 127});
-    t->choice("mode", s.mode, {"profile_velocity", "velocity"});
-    t->integer("heartbeat_producer_ms", s.heartbeat_producer_ms, {1, 65535});
-    t->integer("heartbeat_timeout_ms", s.heartbeat_timeout_ms, {1, 65535});
-    t->integer("sdo_timeout_ms", s.sdo_timeout_ms, {1, 60000});
-    t->integer("spin_up_timeout_ms", s.spin_up_timeout_ms, kTimeoutMs);
-    t->number("at_speed_tolerance_rpm", s.at_speed_tolerance_rpm, {0.1, 10000.0});
-    t->number("max_rpm", s.max_rpm, {1.0, 100000.0});
-    if (s.heartbeat_timeout_ms <= s.heartbeat_producer_ms)
-      t->error("heartbeat_timeout_ms", "must be longer than heartbeat_producer_ms (" +
-                                           std::to_string(s.heartbeat_producer_ms) + ")");
-  }
+  read_plc(root, cfg.plc);
+  read_camera(root, cfg.slide, cfg.camera);
+  read_robot(root, cfg.robot);
+  read_spindle(root, cfg.spindle);
+  read_calibration(root, cfg.calibration);
   if (auto t = root.table("safety", Need::required)) {
     auto& s = cfg.safety;
     t->vec3("workspace_min_mm", s.workspace_min_mm, kCoordMm, Need::required);
@@ -151,6 +103,8 @@ void read_cell(TableReader& root, CellConfig& cfg) {
 }
 
 void read_part(TableReader& root, PartRecipe& part) {
+  read_geometry(root, part.geometry);
+  read_vision(root, part.vision);
   if (auto t = root.table("part", Need::required)) {
     t->string("id", part.id, Need::required);
     t->string("description", part.description, Need::optional, true);

@@ -72,16 +72,26 @@ void Report::add_file(std::string message) { items_.push_back(Diagnostic{file_, 
 
 std::string describe(const toml::node& node) {
   switch (node.type()) {
-    case toml::node_type::string: return "string \"" + std::string(*node.value<std::string_view>()) + "\"";
-    case toml::node_type::integer: return "integer " + num(*node.value<int64_t>());
-    case toml::node_type::floating_point: return "float " + num(*node.value<double>());
-    case toml::node_type::boolean: return std::string("boolean ") + (*node.value<bool>() ? "true" : "false");
-    case toml::node_type::table: return "a table";
-    case toml::node_type::array: return "an array";
-    case toml::node_type::date: return "a date";
-    case toml::node_type::time: return "a time";
-    case toml::node_type::date_time: return "a date-time";
-    default: return "nothing";
+    case toml::node_type::string:
+      return "string \"" + std::string(*node.value<std::string_view>()) + "\"";
+    case toml::node_type::integer:
+      return "integer " + num(*node.value<int64_t>());
+    case toml::node_type::floating_point:
+      return "float " + num(*node.value<double>());
+    case toml::node_type::boolean:
+      return std::string("boolean ") + (*node.value<bool>() ? "true" : "false");
+    case toml::node_type::table:
+      return "a table";
+    case toml::node_type::array:
+      return "an array";
+    case toml::node_type::date:
+      return "a date";
+    case toml::node_type::time:
+      return "a time";
+    case toml::node_type::date_time:
+      return "a date-time";
+    default:
+      return "nothing";
   }
 }
 
@@ -187,8 +197,7 @@ void TableReader::string(std::string_view key, std::string& out, Need need, bool
   out = *v;
 }
 
-void TableReader::choice(std::string_view key, std::string& out, const std::vector<std::string>& allowed,
-                         Need need) {
+void TableReader::choice(std::string_view key, std::string& out, const std::vector<std::string>& allowed, Need need) {
   const toml::node* node = lookup(key, need);
   if (node == nullptr) return;
   const auto v = node->value_exact<std::string>();
@@ -245,9 +254,9 @@ void TableReader::numbers(std::string_view key, std::vector<double>& out, Range<
   const toml::node* node = lookup(key, need);
   if (node == nullptr) return;
   const toml::array* arr = node->as_array();
-  const std::string expected = min_count == max_count ? "an array of " + num(min_count) + " numbers"
-                                                      : "an array of " + num(min_count) + " to " + num(max_count) +
-                                                            " numbers";
+  const std::string expected = min_count == max_count
+                                   ? "an array of " + num(min_count) + " numbers"
+                                   : "an array of " + num(min_count) + " to " + num(max_count) + " numbers";
   if (arr == nullptr) return type_error(key, *node, expected);
   if (arr->size() < min_count || arr->size() > max_count) {
     report_->add(node->source(), key_path(key), "must be " + expected + ", got " + num(arr->size()));
@@ -307,8 +316,7 @@ std::optional<TableReader> TableReader::table(std::string_view key, Need need) {
   return TableReader(*t, key_path(key), *report_, base_dir_);
 }
 
-void TableReader::tables(std::string_view key, const std::function<void(TableReader&, std::size_t)>& each,
-                         Need need) {
+void TableReader::tables(std::string_view key, const std::function<void(TableReader&, std::size_t)>& each, Need need) {
   const toml::node* node = lookup(key, need);
   if (node == nullptr) return;
   const toml::array* arr = node->as_array();

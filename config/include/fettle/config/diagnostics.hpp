@@ -9,8 +9,8 @@ namespace fettle::config {
 /// One problem found in a configuration file, with where it is.
 struct Diagnostic {
   std::string file;
-  int line = 0;    ///< 1-based; 0 when the problem is the file as a whole
-  int column = 0;  ///< 1-based
+  int line = 0;     ///< 1-based; 0 when the problem is the file as a whole
+  int column = 0;   ///< 1-based
   std::string key;  ///< dotted key path, e.g. "plc.port" or "regions[2].type"
   std::string message;
 

@@ -6,6 +6,9 @@
 #include <string>
 #include <vector>
 
+#include "fettle/config/geometry.hpp"
+#include "fettle/config/vision.hpp"
+
 namespace fettle::config {
 
 enum class RegionType { ring_flash, riser, straight_flash, circle_flash };
@@ -26,13 +29,13 @@ struct Tool {
 struct Region {
   std::string name;
   RegionType type = RegionType::ring_flash;
-  std::string tool;                                 ///< name of a [[tools]] entry
-  std::array<double, 3> roi_center_mm{0, 0, 0};     ///< ROI box centre in the part frame
-  std::array<double, 3> roi_size_mm{10, 10, 10};    ///< ROI box edge lengths
+  std::string tool;                               ///< name of a [[tools]] entry
+  std::array<double, 3> roi_center_mm{0, 0, 0};   ///< ROI box centre in the part frame
+  std::array<double, 3> roi_size_mm{10, 10, 10};  ///< ROI box edge lengths
   double feed_mm_s = 20.0;
   double spindle_rpm = 6000.0;
-  double excess_threshold_mm = 0.2;   ///< material higher than this above the template is excess
-  double allowance_mm = 0.05;         ///< left above the template by the last pass
+  double excess_threshold_mm = 0.2;  ///< material higher than this above the template is excess
+  double allowance_mm = 0.05;        ///< left above the template by the last pass
   // ring_flash / circle_flash
   double chamfer_deg = 45.0;
   double point_spacing_mm = 1.0;
@@ -46,15 +49,15 @@ struct Region {
 };
 
 struct FixturePrior {
-  std::array<double, 3> position_mm{0, 0, 0};     ///< nominal part origin in the fixture frame
-  std::array<double, 3> rotation_deg{0, 0, 0};    ///< nominal part rotation (roll, pitch, yaw)
-  double position_tolerance_mm = 5.0;             ///< how far the real part may be from nominal
+  std::array<double, 3> position_mm{0, 0, 0};   ///< nominal part origin in the fixture frame
+  std::array<double, 3> rotation_deg{0, 0, 0};  ///< nominal part rotation (roll, pitch, yaw)
+  double position_tolerance_mm = 5.0;           ///< how far the real part may be from nominal
   double rotation_tolerance_deg = 5.0;
 };
 
 struct TemplateSource {
-  std::string kind = "simulator";      ///< simulator (the simulator's golden part) | scan
-  std::filesystem::path scan;          ///< golden scan (PLY/PCD) when kind == scan
+  std::string kind = "simulator";  ///< simulator (the simulator's golden part) | scan
+  std::filesystem::path scan;      ///< golden scan (PLY/PCD) when kind == scan
   double voxel_mm = 0.5;
 };
 
@@ -66,6 +69,8 @@ struct PartRecipe {
   FixturePrior fixture;
   std::vector<Tool> tools;
   std::vector<Region> regions;
+  PartGeometry geometry;
+  VisionSettings vision;
 };
 
 }  // namespace fettle::config

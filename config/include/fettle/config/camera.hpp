@@ -1,0 +1,23 @@
+#pragma once
+// 3D camera (GigE Vision) and its slide: [camera] and [slide] in the cell file.
+#include <array>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace fettle::config {
+
+struct SlideSection {
+  std::vector<double> photo_positions_mm{0.0};  ///< slide positions where the camera takes a view
+  int travel_timeout_ms = 15000;
+};
+
+struct CameraSection {
+  std::string address;  ///< IPv4 of the GigE Vision camera (or use serial)
+  std::string serial;   ///< serial number (or use address)
+  int frame_timeout_ms = 5000;
+  int retries = 2;
+  double exposure_us = 20000.0;
+};
+
+}  // namespace fettle::config
