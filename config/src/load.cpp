@@ -242,4 +242,14 @@ std::vector<Diagnostic> check_file(const std::filesystem::path& file, FileKind k
   return diagnostics;
 }
 
+log::Options logging_options(const LoggingSection& logging, std::string program,
+                             std::optional<std::string> override_level) {
+  log::Options o;
+  o.program = std::move(program);
+  o.default_level = logging.level;
+  o.component_levels = logging.components;
+  o.override_level = std::move(override_level);
+  return o;
+}
+
 }  // namespace fettle::config

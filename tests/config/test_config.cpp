@@ -291,3 +291,16 @@ TEST_F(ConfigFileTest, KindCanBeForced) {
   const auto d = check_file(write("part.toml", kPart), FileKind::cell);
   EXPECT_FALSE(d.empty());  // a part file is not a valid cell file
 }
+
+TEST_F(ConfigFileTest, LoggingLevelsPerComponentComeFromTheCellFile) {
+  const auto cfg = fettle::config::load_cell(
+      write("cell.toml", kCell + "\n[logging]\nlevel = \"warn\"\ncomponents = { plc = \"debug\" }\n"));
+  auto o = fettle::config::logging_options(cfg.logging, "fettled");
+  o.target = fettle::log::Target::stderr_text;
+  fettle::log::init(o);
+  EXPECT_EQ(fettle::log::get("plc")->level(), spdlog::level::debug);
+  EXPECT_EQ(fettle::log::get("robot")->level(), spdlog::level::warn);
+  o.override_level = "trace";  // --log-level wins
+  fettle::log::init(o);
+  EXPECT_EQ(fettle::log::get("plc")->level(), spdlog::level::trace);
+}
