@@ -1,11 +1,78 @@
 #pragma once
-// Calibration: [calibration] in the cell file names the calibration file (issue: calibration).
+// Calibration: [calibration] in the cell file names the calibration file, and the
+// calibration file itself (camera intrinsics, T_base_camera, T_camera_projector and the
+// residuals of the procedures that produced them). Its id and date go into every cycle
+// report. Format: docs/calibration.md; example: config/calibration.sim.toml.
+#include <array>
 #include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "fettle/config/diagnostics.hpp"
+#include "fettle/core/geometry.hpp"
 
 namespace fettle::config {
 
 struct CalibrationSection {
   std::filesystem::path file;  ///< calibration file (T_base_camera, intrinsics); empty = none yet
 };
+
+/// Pinhole camera with OpenCV's distortion model (k1 k2 p1 p2 [k3 [k4 k5 k6 ...]]).
+struct CameraIntrinsics {
+  int width_px = 0;
+  int height_px = 0;
+  double fx_px = 0.0;
+  double fy_px = 0.0;
+  double cx_px = 0.0;
+  double cy_px = 0.0;
+  double skew = 0.0;
+  std::vector<double> distortion;  ///< OpenCV order; empty = none
+  double rms_px = 0.0;             ///< reprojection RMS of the calibration (0 = nominal values)
+  int views = 0;                   ///< views used (0 = nominal values)
+};
+
+/// Per-pose residual of a hand-eye calibration.
+struct PoseResidual {
+  std::string name;
+  double translation_mm = 0.0;
+  double rotation_deg = 0.0;
+  bool outlier = false;
+};
+
+struct HandEyeResiduals {
+  std::string method;  ///< "nominal", "board" or "sphere"
+  int poses = 0;       ///< poses used
+  double rms_mm = 0.0;
+  double max_mm = 0.0;
+  double rms_deg = 0.0;  ///< 0 for the sphere method (positions only)
+  double max_deg = 0.0;
+  std::vector<PoseResidual> per_pose;
+};
+
+/// The calibration file.
+struct CalibrationFile {
+  std::filesystem::path source;  ///< where it was read from (empty if built in memory)
+  std::string id;                ///< identity, copied into every cycle report
+  std::string date;              ///< when it was made, ISO 8601 UTC ("2026-11-22T04:30:00Z")
+  std::string note;              ///< free text
+  std::optional<CameraIntrinsics> intrinsics;
+  std::optional<Transform> T_base_camera;       ///< camera points -> robot base frame (mm)
+  std::optional<Transform> T_flange_board;      ///< board-based hand-eye by-product
+  std::optional<Transform> T_camera_projector;  ///< projector points -> camera frame (mm)
+  std::optional<HandEyeResiduals> hand_eye;
+  double stereo_rms_px = 0.0;  ///< camera-projector calibration RMS (0 = none or nominal)
+};
+
+/// Reads a calibration file; throws ConfigError listing every problem found.
+CalibrationFile load_calibration(const std::filesystem::path& file);
+/// Checks a calibration file without throwing: the problems found (empty = valid).
+std::vector<Diagnostic> check_calibration(const std::filesystem::path& file);
+/// The TOML text of a calibration file (with comments saying what each key is).
+std::string to_toml(const CalibrationFile& calibration);
+/// Writes a calibration file atomically; throws UserError if it cannot be written.
+void write_calibration(const std::filesystem::path& file, const CalibrationFile& calibration);
+/// The current UTC time as ISO 8601, e.g. "2026-11-22T04:30:00Z".
+std::string utc_now_iso8601();
 
 }  // namespace fettle::config
