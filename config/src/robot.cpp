@@ -2,6 +2,8 @@
 #include "fettle/config/robot.hpp"
 #include "sections.hpp"
 
+#include <string>
+
 namespace fettle::config::detail {
 
 void read_robot(TableReader& root, RobotSection& r) {
@@ -14,6 +16,12 @@ void read_robot(TableReader& root, RobotSection& r) {
     t->integer("missed_pings", r.missed_pings, {1, 100});
     t->integer("chunk_points", r.chunk_points, {1, 1000});
     t->integer("run_timeout_ms", r.run_timeout_ms, kTimeoutMs);
+    t->integer("reconnect_initial_ms", r.reconnect_initial_ms, {10, 60000});
+    t->integer("reconnect_max_ms", r.reconnect_max_ms, {10, 600000});
+    if (r.reconnect_max_ms < r.reconnect_initial_ms)
+      t->error("reconnect_max_ms", "reconnect_max_ms (" + std::to_string(r.reconnect_max_ms) +
+                                       ") must be at least reconnect_initial_ms (" +
+                                       std::to_string(r.reconnect_initial_ms) + ")");
   }
 }
 

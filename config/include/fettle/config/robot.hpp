@@ -16,6 +16,8 @@ struct RobotSection {
   int missed_pings = 3;   ///< this many pings without PONG → link down
   int chunk_points = 20;  ///< trajectory points per upload chunk
   int run_timeout_ms = 600000;
+  int reconnect_initial_ms = 100;  ///< reconnect backoff after the link went down, doubling ...
+  int reconnect_max_ms = 5000;     ///< ... up to this
 };
 
 }  // namespace fettle::config
