@@ -46,7 +46,7 @@ Child spawn(const std::vector<std::string>& args) {
 
 TEST(RobotSimCli, PrintsThePortAndServesARobotLink) {
   const std::string exe = std::string(FETTLE_BIN_DIR) + "/fettle-sim";
-  Child c = spawn({exe, "robot", "--listen", "127.0.0.1:0", "--speedup", "0", "--log-level", "warn"});
+  Child c = spawn({exe, "--log-level", "warn", "robot", "--listen", "127.0.0.1:0", "--speedup", "0"});
   ASSERT_GT(c.pid, 0);
   ASSERT_NE(c.out, nullptr);
   char line[256] = {};
