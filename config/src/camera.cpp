@@ -19,6 +19,9 @@ void read_camera(TableReader& root, SlideSection& slide, CameraSection& c) {
     t->integer("frame_timeout_ms", c.frame_timeout_ms, kTimeoutMs);
     t->integer("retries", c.retries, {0, 100});
     t->number("exposure_us", c.exposure_us, {1.0, 10e6});
+    t->choice("pixel_format", c.pixel_format, {"Coord3D_C16", "Coord3D_C32f", "Coord3D_ABC32f"});
+    t->integer("packet_size_bytes", c.packet_size_bytes, {0, 65000});
+    t->choice("intrinsics", c.intrinsics, {"camera", "calibration"});
   }
 }
 

@@ -18,6 +18,9 @@ struct CameraSection {
   int frame_timeout_ms = 5000;
   int retries = 2;
   double exposure_us = 20000.0;
+  std::string pixel_format;        ///< Coord3D_C16 | Coord3D_C32f | Coord3D_ABC32f; empty = the camera's own
+  int packet_size_bytes = 0;       ///< GevSCPSPacketSize; 0 = the camera's own
+  std::string intrinsics = "camera";  ///< range-map intrinsics: "camera" (Scan3d features) or "calibration"
 };
 
 }  // namespace fettle::config
