@@ -1,0 +1,140 @@
+#pragma once
+// The PLC link: a Modbus TCP client (libmodbus) on its own thread.
+//
+// libmodbus is blocking and not thread-safe, so the link owns its modbus context on a
+// thread of its own and never blocks the caller. It talks to the daemon in two ways:
+//   - events (LinkUp, LinkDown, CycleRequest, ...) are posted to the executor given at
+//     construction, so a daemon that keeps all its state on one asio::io_context thread
+//     receives them there;
+//   - commands (set_state, command_slide, ...) are thread-safe, queued, and written to
+//     the PLC at the next poll.
+// Every poll reads the PLC block and writes the Fettle block (docs/plc-interface.md).
+// Failures never throw on this path: they become LinkDown events, and the link
+// reconnects by itself with exponential back-off (reconnect_initial_ms → reconnect_max_ms).
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <variant>
+
+#include <boost/asio/any_io_executor.hpp>
+
+#include "fettle/config/cell.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/drivers/packml.hpp"
+#include "fettle/drivers/plc_registers.hpp"
+
+namespace fettle::drivers::plc {
+
+enum class LinkDownReason {
+  connect_failed,   ///< TCP connect refused or timed out
+  timeout,          ///< a request got no reply within response_timeout_ms
+  io_error,         ///< the connection broke (peer closed, reset, Modbus exception)
+  heartbeat_stale,  ///< the PLC's heartbeat did not change for heartbeat_timeout_ms
+};
+std::string_view name(LinkDownReason r);
+
+/// The PLC answered with a valid block and its heartbeat is alive.
+struct LinkUp {
+  std::string peer;  ///< "address:port"
+};
+/// The link is not usable. Posted once per outage (not once per reconnect attempt).
+struct LinkDown {
+  LinkDownReason reason;
+  std::string detail;  ///< for people: what failed, where
+};
+/// The link will try to connect again after delay_ms (attempt counts from 1 per outage).
+struct Reconnecting {
+  int attempt = 0;
+  int delay_ms = 0;
+};
+/// The PLC requests a cycle (its request toggle differs from our acknowledge toggle).
+/// Posted once per request while it is pending, and again after a reconnect. Accept it
+/// with Link::accept_cycle().
+struct CycleRequest {
+  int recipe_id = 0;
+};
+/// The slide's state changed (and once after every LinkUp).
+struct SlideState {
+  SlideStatus status = SlideStatus::unknown;
+  int position = 0;  ///< 0 = home, 1..n photo position
+};
+/// The PLC sent a PackML command. The link acknowledges it to the PLC itself; a Reset
+/// also clears the latched fault.
+struct PackMLCommand {
+  packml::Command command = packml::Command::none;
+};
+/// A register read from the PLC holds an impossible value. Nothing from that poll is
+/// acted upon. Posted once per distinct violation while it lasts.
+struct ValueOutOfRange {
+  int address = 0;  ///< Modbus holding-register address (register_base + offset)
+  int offset = 0;   ///< offset in the map
+  int value = 0;
+  std::string allowed;
+};
+
+using Event = std::variant<LinkUp, LinkDown, Reconnecting, CycleRequest, SlideState, PackMLCommand, ValueOutOfRange>;
+/// One line for logs and tests, e.g. "LinkDown(timeout: ...)".
+std::string describe(const Event& e);
+
+struct LinkOptions {
+  std::string address = "127.0.0.1";
+  int port = 502;
+  int unit_id = 1;
+  int register_base = 0;
+  int response_timeout_ms = 200;
+  int poll_period_ms = 50;
+  int heartbeat_timeout_ms = 1000;
+  int reconnect_initial_ms = 100;
+  int reconnect_max_ms = 5000;
+  Limits limits;
+
+  /// From [plc] and the number of [slide] photo positions.
+  static LinkOptions from_config(const config::CellConfig& cell);
+};
+
+/// A snapshot for status displays and tests.
+struct LinkStatus {
+  bool connected = false;  ///< TCP connection open
+  bool up = false;         ///< last event was LinkUp
+  int connects = 0;        ///< successful TCP connects
+  int connect_attempts = 0;
+  long long polls = 0;  ///< completed read+write exchanges
+  FettleOutputs outputs;
+  PlcInputs inputs;  ///< last valid PLC block
+};
+
+class Link {
+ public:
+  using Handler = std::function<void(const Event&)>;
+
+  /// Events are posted to `executor` and delivered to `on_event` there.
+  Link(boost::asio::any_io_executor executor, LinkOptions options, Handler on_event);
+  ~Link();  ///< stops the thread
+  Link(const Link&) = delete;
+  Link& operator=(const Link&) = delete;
+
+  void start();
+  /// Stops the thread and closes the connection; no event is posted after stop() returns.
+  void stop();
+
+  // Commands: validated here, queued, written at the next poll. An invalid argument is
+  // an Error (and nothing is queued).
+  Status set_state(packml::State state);
+  Status command_slide(int target);  ///< 0 = home, 1..n photo position n
+  /// Accepts the pending cycle request: copies the request toggle to the acknowledge toggle.
+  void accept_cycle();
+  Status report_result(CycleResult result);
+  /// Raises fault `code` (1..65535) and sets the latched fault bit. While latched, the
+  /// first code stays; only a PackML Reset from the PLC clears it.
+  Status raise_fault(std::uint16_t code);
+
+  [[nodiscard]] LinkStatus status() const;
+  [[nodiscard]] const LinkOptions& options() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace fettle::drivers::plc

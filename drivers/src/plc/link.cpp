@@ -1,0 +1,428 @@
+// The PLC link: libmodbus TCP client on its own thread; events posted to an executor.
+#include "fettle/drivers/plc_link.hpp"
+
+#include <modbus.h>
+
+#include <algorithm>
+#include <array>
+#include <optional>
+#include <atomic>
+#include <cerrno>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include <boost/asio/post.hpp>
+
+#include "fettle/core/log.hpp"
+
+namespace fettle::drivers::plc {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::milliseconds;
+
+std::string_view name(LinkDownReason r) {
+  switch (r) {
+    case LinkDownReason::connect_failed: return "connect_failed";
+    case LinkDownReason::timeout: return "timeout";
+    case LinkDownReason::io_error: return "io_error";
+    case LinkDownReason::heartbeat_stale: return "heartbeat_stale";
+  }
+  return "?";
+}
+
+namespace {
+struct Describer {
+  std::string operator()(const LinkUp& e) const { return "LinkUp(" + e.peer + ")"; }
+  std::string operator()(const LinkDown& e) const {
+    return "LinkDown(" + std::string(name(e.reason)) + ": " + e.detail + ")";
+  }
+  std::string operator()(const Reconnecting& e) const {
+    return "Reconnecting(attempt " + std::to_string(e.attempt) + " in " + std::to_string(e.delay_ms) + " ms)";
+  }
+  std::string operator()(const CycleRequest& e) const { return "CycleRequest(recipe " + std::to_string(e.recipe_id) + ")"; }
+  std::string operator()(const SlideState& e) const {
+    return "SlideState(" + std::string(name(e.status)) + ", position " + std::to_string(e.position) + ")";
+  }
+  std::string operator()(const PackMLCommand& e) const { return "PackMLCommand(" + std::string(packml::name(e.command)) + ")"; }
+  std::string operator()(const ValueOutOfRange& e) const {
+    return "ValueOutOfRange(address " + std::to_string(e.address) + ": " +
+           describe(RangeViolation{e.offset, e.value, e.allowed}) + ")";
+  }
+};
+}  // namespace
+
+std::string describe(const Event& e) { return std::visit(Describer{}, e); }
+
+LinkOptions LinkOptions::from_config(const config::CellConfig& cell) {
+  LinkOptions o;
+  const auto& p = cell.plc;
+  o.address = p.address;
+  o.port = p.port;
+  o.unit_id = p.unit_id;
+  o.register_base = p.register_base;
+  o.response_timeout_ms = p.response_timeout_ms;
+  o.poll_period_ms = p.poll_period_ms;
+  o.heartbeat_timeout_ms = p.heartbeat_timeout_ms;
+  o.reconnect_initial_ms = p.reconnect_initial_ms;
+  o.reconnect_max_ms = p.reconnect_max_ms;
+  o.limits.slide_positions = static_cast<int>(std::max<std::size_t>(1, cell.slide.photo_positions_mm.size()));
+  return o;
+}
+
+struct Link::Impl {
+  Impl(boost::asio::any_io_executor ex, LinkOptions opts, Handler h)
+      : executor(std::move(ex)), options(std::move(opts)), handler(std::move(h)), log(log::get("plc")) {}
+
+  boost::asio::any_io_executor executor;
+  const LinkOptions options;
+  const Handler handler;
+  std::shared_ptr<spdlog::logger> log;
+
+  // Shared with callers (under mutex).
+  mutable std::mutex mutex;
+  std::condition_variable wake;
+  bool stop_requested = false;
+  std::vector<std::function<void(FettleOutputs&)>> commands;
+  LinkStatus shared_status;
+
+  std::thread thread;
+
+  // Link-thread state.
+  modbus_t* ctx = nullptr;
+  FettleOutputs outputs;
+  bool up = false;
+  bool down_reported = false;
+  bool first_read_since_start = true;
+  bool first_read_since_connect = true;
+  std::uint16_t last_plc_heartbeat = 0;
+  bool heartbeat_seen_change = false;
+  Clock::time_point heartbeat_changed_at{};
+  int posted_request_toggle = -1;  // request toggle value already posted as CycleRequest
+  std::optional<SlideState> posted_slide;
+  std::vector<RangeViolation> active_violations;
+  int attempt = 0;  // reconnect attempts in this outage
+  LinkStatus st;    // published to shared_status after each step
+
+  void post(Event e) {
+    log->debug("plc event: {}", describe(e));
+    boost::asio::post(executor, [h = handler, ev = std::move(e)] { h(ev); });
+  }
+
+  std::string peer() const { return options.address + ":" + std::to_string(options.port); }
+
+  /// Sleeps up to `d`; returns false if stop was requested.
+  bool sleep_for(milliseconds d) {
+    std::unique_lock lock(mutex);
+    wake.wait_for(lock, d, [this] { return stop_requested; });
+    return !stop_requested;
+  }
+
+  void publish() {
+    st.outputs = outputs;
+    st.up = up;
+    st.connected = ctx != nullptr;
+    std::lock_guard lock(mutex);
+    shared_status = st;
+  }
+
+  void went_down(LinkDownReason reason, std::string detail) {
+    const bool report = up || !down_reported;
+    up = false;
+    down_reported = true;
+    publish();  // status() agrees with the event by the time it arrives
+    if (report) {
+      log->warn("PLC link down ({}): {}", name(reason), detail);
+      post(LinkDown{reason, std::move(detail)});
+    }
+  }
+
+  void disconnect() {
+    if (ctx != nullptr) {
+      modbus_close(ctx);
+      modbus_free(ctx);
+      ctx = nullptr;
+    }
+  }
+
+  void drop(LinkDownReason reason, std::string detail) {
+    disconnect();
+    went_down(reason, std::move(detail));
+  }
+
+  bool connect() {
+    ++st.connect_attempts;
+    ctx = modbus_new_tcp(options.address.c_str(), options.port);
+    if (ctx == nullptr) {
+      went_down(LinkDownReason::connect_failed, "cannot create a Modbus context for " + peer() + ": " +
+                                                    modbus_strerror(errno));
+      return false;
+    }
+    const auto to_us = static_cast<std::uint32_t>(options.response_timeout_ms) * 1000U;
+    modbus_set_response_timeout(ctx, to_us / 1000000U, to_us % 1000000U);
+    modbus_set_byte_timeout(ctx, to_us / 1000000U, to_us % 1000000U);
+    modbus_set_error_recovery(ctx, MODBUS_ERROR_RECOVERY_NONE);  // we reconnect ourselves
+    modbus_set_slave(ctx, options.unit_id);
+    if (modbus_connect(ctx) == -1) {
+      const std::string err = modbus_strerror(errno);
+      modbus_free(ctx);
+      ctx = nullptr;
+      went_down(LinkDownReason::connect_failed,
+                "cannot connect to the PLC at " + peer() + ": " + err + " (is it on and is [plc] address/port right?)");
+      return false;
+    }
+    ++st.connects;
+    first_read_since_connect = true;
+    heartbeat_seen_change = false;
+    heartbeat_changed_at = Clock::now();
+    posted_request_toggle = -1;
+    posted_slide.reset();
+    active_violations.clear();
+    log->info("PLC link connected to {}", peer());
+    return true;
+  }
+
+  void io_failure(const char* what, int err) {
+    const auto reason = err == ETIMEDOUT ? LinkDownReason::timeout : LinkDownReason::io_error;
+    std::string detail = std::string(what) + " at " + peer() + " failed: " + modbus_strerror(err);
+    if (reason == LinkDownReason::timeout)
+      detail += " (no reply within " + std::to_string(options.response_timeout_ms) + " ms)";
+    drop(reason, std::move(detail));
+  }
+
+  void report_violations(const std::vector<RangeViolation>& now) {
+    for (const auto& v : now)
+      if (std::find(active_violations.begin(), active_violations.end(), v) == active_violations.end()) {
+        log->error("PLC value out of range: {}", describe(v));
+        post(ValueOutOfRange{options.register_base + v.offset, v.offset, v.value, v.allowed});
+      }
+    active_violations = now;
+  }
+
+  /// Violations that depend on the handshake state, not on one register alone.
+  void check_handshakes(const PlcInputs& in, std::vector<RangeViolation>& out) const {
+    if (in.command_toggle != outputs.command_ack_toggle && in.command == packml::Command::none)
+      out.push_back({reg::packml_command, 0, "1 to 9 when packml_command_toggle changes"});
+    if (in.cycle_request_toggle != outputs.cycle_ack_toggle && in.recipe_id == 0)
+      out.push_back({reg::recipe_id, 0, "1 to 65535 when a cycle is requested"});
+  }
+
+  /// Acts on a valid PLC block.
+  void process(const PlcInputs& in) {
+    st.inputs = in;
+    // PackML command handshake: pending while the toggles differ.
+    if (in.command_toggle != outputs.command_ack_toggle) {
+      post(PackMLCommand{in.command});
+      outputs.command_ack_toggle = in.command_toggle;
+      if (in.command == packml::Command::reset && outputs.fault_latched) {
+        log->info("PLC reset clears latched fault {}", outputs.fault_code);
+        outputs.fault_latched = false;
+        outputs.fault_code = 0;
+      }
+    }
+    // Cycle request handshake: pending while the toggles differ.
+    if (in.cycle_request_toggle != outputs.cycle_ack_toggle) {
+      if (posted_request_toggle != in.cycle_request_toggle) {
+        post(CycleRequest{in.recipe_id});
+        posted_request_toggle = in.cycle_request_toggle;
+      }
+    } else {
+      posted_request_toggle = -1;
+    }
+    const SlideState slide{in.slide_status, in.slide_position};
+    if (!posted_slide || posted_slide->status != slide.status || posted_slide->position != slide.position) {
+      post(slide);
+      posted_slide = slide;
+    }
+  }
+
+  void poll_once() {
+    std::array<std::uint16_t, reg::plc_block_size> regs{};
+    const int rc = modbus_read_registers(ctx, options.register_base + reg::plc_block_start, reg::plc_block_size,
+                                         regs.data());
+    if (rc != reg::plc_block_size) {
+      io_failure("reading the PLC block", rc == -1 ? errno : EMBBADDATA);
+      return;
+    }
+    const auto now = Clock::now();
+    const auto decoded = decode_plc_block(regs, options.limits);
+    // Heartbeat: the raw register is always a valid value.
+    const auto hb = regs[reg::plc_heartbeat - reg::plc_block_start];
+    if (first_read_since_connect) {
+      last_plc_heartbeat = hb;
+      heartbeat_changed_at = now;
+    } else if (hb != last_plc_heartbeat) {
+      last_plc_heartbeat = hb;
+      heartbeat_changed_at = now;
+      heartbeat_seen_change = true;
+    }
+    first_read_since_connect = false;
+    const bool stale = now - heartbeat_changed_at > milliseconds(options.heartbeat_timeout_ms);
+    if (stale) {
+      went_down(LinkDownReason::heartbeat_stale, "the PLC heartbeat (register " +
+                                                     std::to_string(options.register_base + reg::plc_heartbeat) +
+                                                     ") did not change for " +
+                                                     std::to_string(options.heartbeat_timeout_ms) + " ms at " + peer());
+    }
+
+    auto violations = decoded.violations;
+    if (decoded.ok()) {
+      // At the link's very first read a differing command toggle is a leftover from
+      // before we ran: adopt it, never obey it.
+      if (first_read_since_start) outputs.command_ack_toggle = decoded.value.command_toggle;
+      first_read_since_start = false;
+      check_handshakes(decoded.value, violations);
+    }
+    if (!violations.empty()) {
+      report_violations(violations);
+    } else {
+      if (!active_violations.empty()) log->info("PLC values back in range");
+      active_violations.clear();
+      if (!up && heartbeat_seen_change && !stale) {
+        up = true;
+        down_reported = false;
+        attempt = 0;
+        log->info("PLC link up: {}", peer());
+        publish();
+        post(LinkUp{peer()});
+      }
+      if (up) process(decoded.value);
+    }
+
+    // Write our block (heartbeat, acknowledgements, state, commands).
+    {
+      std::vector<std::function<void(FettleOutputs&)>> pending;
+      {
+        std::lock_guard lock(mutex);
+        pending.swap(commands);
+      }
+      for (auto& c : pending) c(outputs);
+    }
+    ++outputs.heartbeat;
+    const auto block = encode_fettle_block(outputs);
+    if (modbus_write_registers(ctx, options.register_base + reg::fettle_block_start, reg::fettle_block_size,
+                               block.data()) != reg::fettle_block_size) {
+      io_failure("writing the Fettle block", errno);
+      return;
+    }
+    ++st.polls;
+  }
+
+  void run() {
+    log::Scope device{"DEVICE", "plc"};
+    bool first = true;
+    while (true) {
+      {
+        std::lock_guard lock(mutex);
+        if (stop_requested) break;
+      }
+      if (ctx == nullptr) {
+        if (!first) {
+          const int delay = backoff_delay_ms(attempt, options.reconnect_initial_ms, options.reconnect_max_ms);
+          ++attempt;
+          post(Reconnecting{attempt, delay});
+          publish();
+          if (!sleep_for(milliseconds(delay))) break;
+        }
+        first = false;
+        if (!connect()) {
+          publish();
+          continue;
+        }
+      }
+      const auto started = Clock::now();
+      poll_once();
+      publish();
+      if (ctx == nullptr) continue;  // dropped: back-off first
+      const auto next = started + milliseconds(options.poll_period_ms);
+      if (!sleep_for(std::chrono::duration_cast<milliseconds>(std::max(next - Clock::now(), Clock::duration::zero()))))
+        break;
+    }
+    disconnect();
+    up = false;
+    publish();
+  }
+
+  void queue(std::function<void(FettleOutputs&)> c) {
+    std::lock_guard lock(mutex);
+    commands.push_back(std::move(c));
+  }
+};
+
+Link::Link(boost::asio::any_io_executor executor, LinkOptions options, Handler on_event)
+    : impl_(std::make_unique<Impl>(std::move(executor), std::move(options), std::move(on_event))) {}
+
+Link::~Link() { stop(); }
+
+void Link::start() {
+  if (impl_->thread.joinable()) return;
+  {
+    std::lock_guard lock(impl_->mutex);
+    impl_->stop_requested = false;
+  }
+  impl_->thread = std::thread([this] { impl_->run(); });
+}
+
+void Link::stop() {
+  {
+    std::lock_guard lock(impl_->mutex);
+    impl_->stop_requested = true;
+  }
+  impl_->wake.notify_all();
+  if (impl_->thread.joinable()) impl_->thread.join();
+}
+
+Status Link::set_state(packml::State state) {
+  if (state == packml::State::undefined)
+    return Error{"plc.bad_state", "PackML state Undefined (0) is never sent to the PLC"};
+  impl_->queue([state](FettleOutputs& o) { o.state = state; });
+  return {};
+}
+
+Status Link::command_slide(int target) {
+  const int n = impl_->options.limits.slide_positions;
+  if (target < 0 || target > n)
+    return Error{"plc.bad_slide_target", "slide target " + std::to_string(target) + " does not exist: allowed 0 (home) to " +
+                                             std::to_string(n) + " ([slide] photo_positions_mm has " +
+                                             std::to_string(n) + ")"};
+  impl_->queue([target](FettleOutputs& o) {
+    o.slide_target = target;
+    o.slide_command_toggle ^= 1;
+  });
+  return {};
+}
+
+void Link::accept_cycle() {
+  impl_->queue([impl = impl_.get()](FettleOutputs& o) { o.cycle_ack_toggle = impl->st.inputs.cycle_request_toggle; });
+}
+
+Status Link::report_result(CycleResult result) {
+  if (result == CycleResult::none) return Error{"plc.bad_result", "a cycle result must be OK, NOK or re-grind"};
+  impl_->queue([result](FettleOutputs& o) {
+    o.result = result;
+    o.result_toggle ^= 1;
+  });
+  return {};
+}
+
+Status Link::raise_fault(std::uint16_t code) {
+  if (code == 0) return Error{"plc.bad_fault_code", "fault code 0 means 'no fault'; raise a code from 1 to 65535"};
+  impl_->queue([code](FettleOutputs& o) {
+    if (o.fault_latched) return;  // first fault stays until a PLC reset
+    o.fault_code = code;
+    o.fault_latched = true;
+  });
+  return {};
+}
+
+LinkStatus Link::status() const {
+  std::lock_guard lock(impl_->mutex);
+  return impl_->shared_status;
+}
+
+const LinkOptions& Link::options() const { return impl_->options; }
+
+}  // namespace fettle::drivers::plc

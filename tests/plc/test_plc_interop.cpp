@@ -1,0 +1,253 @@
+// Interoperability: our PLC link against a PLC played by python3-pymodbus (not our code),
+// mbpoll (not our code) reading the simulated PLC, and the `fettle-sim plc` program.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <optional>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include "event_log.hpp"
+
+namespace plc = fettle::drivers::plc;
+namespace packml = fettle::packml;
+using fettle::test::EventLog;
+using fettle::test::fast_options;
+using std::chrono::milliseconds;
+
+namespace {
+
+constexpr milliseconds kWait{5000};
+const std::string kPython = "/usr/bin/python3";  // Debian's, where python3-pymodbus lives
+const std::string kScript = std::string(FETTLE_SOURCE_DIR) + "/tests/plc/pymodbus_plc.py";
+const std::string kSim = std::string(FETTLE_BIN_DIR) + "/fettle-sim";
+
+/// A child process with piped stdin/stdout; killed (SIGTERM, then SIGKILL) on destruction.
+class Child {
+ public:
+  explicit Child(const std::vector<std::string>& argv) {
+    int in[2];
+    int out[2];
+    if (::pipe(in) != 0 || ::pipe(out) != 0) return;
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::dup2(in[0], STDIN_FILENO);
+      ::dup2(out[1], STDOUT_FILENO);
+      ::close(in[1]);
+      ::close(out[0]);
+      std::vector<char*> args;
+      for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
+      args.push_back(nullptr);
+      ::execv(args[0], args.data());
+      ::_exit(127);
+    }
+    ::close(in[0]);
+    ::close(out[1]);
+    to_child_ = in[1];
+    from_child_ = out[0];
+  }
+  ~Child() { kill(); }
+  Child(const Child&) = delete;
+  Child& operator=(const Child&) = delete;
+
+  /// The next line of output matching `re` (skipping others), or nothing after `timeout`.
+  std::optional<std::smatch> wait_line(const std::regex& re, milliseconds timeout, std::string* line_out = nullptr) {
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    while (true) {
+      for (auto nl = buffer_.find('\n'); nl != std::string::npos; nl = buffer_.find('\n')) {
+        line_ = buffer_.substr(0, nl);
+        buffer_.erase(0, nl + 1);
+        seen_ += line_ + "\n";
+        std::smatch m;
+        if (std::regex_search(line_, m, re)) {
+          if (line_out != nullptr) *line_out = line_;
+          return m;
+        }
+      }
+      const auto left = std::chrono::duration_cast<milliseconds>(end - std::chrono::steady_clock::now());
+      if (left.count() <= 0 || from_child_ < 0) return std::nullopt;
+      pollfd p{from_child_, POLLIN, 0};
+      if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) return std::nullopt;
+      std::array<char, 1024> chunk{};
+      const auto n = ::read(from_child_, chunk.data(), chunk.size());
+      if (n <= 0) return std::nullopt;
+      buffer_.append(chunk.data(), static_cast<std::size_t>(n));
+    }
+  }
+
+  void write_line(const std::string& s) {
+    const std::string l = s + "\n";
+    ASSERT_EQ(::write(to_child_, l.data(), l.size()), static_cast<ssize_t>(l.size()));
+  }
+
+  void kill() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGTERM);
+      for (int i = 0; i < 100; ++i) {
+        if (::waitpid(pid_, nullptr, WNOHANG) == pid_) {
+          pid_ = -1;
+          break;
+        }
+        ::usleep(10000);
+      }
+      if (pid_ > 0) {
+        ::kill(pid_, SIGKILL);
+        ::waitpid(pid_, nullptr, 0);
+      }
+      pid_ = -1;
+    }
+    if (to_child_ >= 0) ::close(to_child_);
+    if (from_child_ >= 0) ::close(from_child_);
+    to_child_ = from_child_ = -1;
+  }
+
+  [[nodiscard]] bool started() const { return pid_ > 0; }
+  [[nodiscard]] const std::string& output() const { return seen_; }
+
+ private:
+  pid_t pid_ = -1;
+  int to_child_ = -1;
+  int from_child_ = -1;
+  std::string buffer_;
+  std::string line_;
+  std::string seen_;
+};
+
+const std::regex kListening(R"(^listening 127\.0\.0\.1:(\d+)$)");
+
+std::optional<int> listening_port(Child& c) {
+  const auto m = c.wait_line(kListening, kWait);
+  if (!m) return std::nullopt;
+  return std::stoi((*m)[1].str());
+}
+
+bool pymodbus_available() {
+  const std::string cmd = kPython + " -c 'import pymodbus.server.async_io' >/dev/null 2>&1";
+  return std::system(cmd.c_str()) == 0;  // NOLINT(cert-env33-c)
+}
+
+std::string run_capture(const std::string& cmd, int& exit_code) {
+  FILE* pipe = ::popen((cmd + " 2>&1").c_str(), "r");
+  if (pipe == nullptr) {
+    exit_code = -1;
+    return {};
+  }
+  std::string out;
+  std::array<char, 4096> buf{};
+  while (std::fgets(buf.data(), buf.size(), pipe) != nullptr) out += buf.data();
+  const int status = ::pclose(pipe);
+  exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  return out;
+}
+
+TEST(PlcInterop, LinkTalksToAPymodbusPlcAndRecoversWhenItRestarts) {
+  if (!pymodbus_available())
+    GTEST_SKIP() << "python3-pymodbus (with python3-serial-asyncio) is not importable by " << kPython;
+  const std::vector<std::string> argv{kPython, kScript, "--register-base", "40", "--recipe", "42", "--command", "3"};
+  auto py = std::make_unique<Child>(argv);
+  ASSERT_TRUE(py->started());
+  const auto port = listening_port(*py);
+  ASSERT_TRUE(port) << "pymodbus PLC did not report its port:\n" << py->output();
+
+  EventLog events;
+  auto options = fast_options(*port);
+  options.register_base = 40;
+  plc::Link link(events.executor(), options, events.handler());
+  link.start();
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+  const auto slide = events.wait_for<plc::SlideState>(kWait);
+  ASSERT_TRUE(slide);
+  EXPECT_EQ(slide->status, plc::SlideStatus::at_home);
+
+  // Heartbeat each way, cycle request and its acknowledge.
+  ASSERT_TRUE(py->wait_line(std::regex("^fettle heartbeat running$"), kWait)) << py->output();
+  const auto req = events.wait_for<plc::CycleRequest>(kWait);
+  ASSERT_TRUE(req) << events.dump();
+  EXPECT_EQ(req->recipe_id, 42);
+  link.accept_cycle();
+  ASSERT_TRUE(py->wait_line(std::regex("^accepted 42$"), kWait)) << py->output();
+
+  // The PackML command the pymodbus PLC sends after the acknowledge (3 = Stop).
+  const auto cmd = events.wait_for<plc::PackMLCommand>(kWait);
+  ASSERT_TRUE(cmd) << events.dump();
+  EXPECT_EQ(cmd->command, packml::Command::stop);
+  ASSERT_TRUE(py->wait_line(std::regex("^command acknowledged$"), kWait)) << py->output();
+
+  // State code and result as the PLC reads them.
+  ASSERT_TRUE(link.set_state(packml::State::execute).ok());
+  ASSERT_TRUE(py->wait_line(std::regex("^state 6$"), kWait)) << py->output();
+  ASSERT_TRUE(link.report_result(plc::CycleResult::nok).ok());
+  ASSERT_TRUE(py->wait_line(std::regex("^result 2$"), kWait)) << py->output();
+
+  // The PLC goes away: link down; it comes back on the same port: link up again.
+  py.reset();
+  const auto down = events.wait_for<plc::LinkDown>(kWait);
+  ASSERT_TRUE(down) << events.dump();
+  ASSERT_TRUE(events.wait_for<plc::Reconnecting>(kWait));
+  auto argv2 = argv;
+  argv2.insert(argv2.end(), {"--port", std::to_string(*port)});
+  py = std::make_unique<Child>(argv2);
+  ASSERT_TRUE(listening_port(*py)) << py->output();
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+  EXPECT_EQ(link.status().connects, 2);
+}
+
+TEST(PlcInterop, MbpollReadsTheSimulatedPlcHoldingRegisters) {
+  if (!std::filesystem::exists("/usr/bin/mbpoll")) GTEST_SKIP() << "mbpoll is not installed";
+  Child sim({kSim, "plc", "--listen", "127.0.0.1:0", "--run-for-s", "30"});
+  ASSERT_TRUE(sim.started());
+  const auto port = listening_port(sim);
+  ASSERT_TRUE(port) << sim.output();
+  int rc = 0;
+  // mbpoll's references are 1-based: reference 1 is holding register 0 (interface_version).
+  const auto out = run_capture("/usr/bin/mbpoll -m tcp -a 1 -r 1 -c 10 -t 4 -p " + std::to_string(*port) +
+                                   " -1 127.0.0.1",
+                               rc);
+  ASSERT_EQ(rc, 0) << out;
+  EXPECT_NE(out.find("[1]: \t1\n"), std::string::npos) << "interface_version should read 1:\n" << out;
+  EXPECT_NE(out.find("[5]: \t1\n"), std::string::npos) << "slide_state should read 1 (at home):\n" << out;
+  EXPECT_NE(out.find("[10]: \t"), std::string::npos) << out;
+}
+
+TEST(PlcInterop, FettleSimPlcProgramTakesCommandsOnStdin) {
+  Child sim({kSim, "plc", "--listen", "127.0.0.1:0", "--heartbeat-period-ms", "20", "--run-for-s", "30"});
+  ASSERT_TRUE(sim.started());
+  const auto port = listening_port(sim);
+  ASSERT_TRUE(port) << sim.output();
+  EventLog events;
+  plc::Link link(events.executor(), fast_options(*port), events.handler());
+  link.start();
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+  sim.write_line("part 9");
+  const auto req = events.wait_for<plc::CycleRequest>(kWait);
+  ASSERT_TRUE(req) << events.dump() << sim.output();
+  EXPECT_EQ(req->recipe_id, 9);
+  link.accept_cycle();
+  ASSERT_TRUE(sim.wait_line(std::regex("accepted the cycle request for recipe 9"), kWait)) << sim.output();
+  sim.write_line("freeze on");
+  const auto down = events.wait_for<plc::LinkDown>(kWait);
+  ASSERT_TRUE(down) << events.dump();
+  EXPECT_EQ(down->reason, plc::LinkDownReason::heartbeat_stale);
+  sim.write_line("freeze off");
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+  sim.write_line("teleport");
+  ASSERT_TRUE(sim.wait_line(std::regex("^error .*unknown command"), kWait)) << sim.output();
+}
+
+TEST(PlcInterop, FettleSimPlcRejectsABadListenAddress) {
+  int rc = 0;
+  const auto out = run_capture(kSim + " plc --listen 127.0.0.1:99999 --run-for-s 1", rc);
+  EXPECT_EQ(rc, 1) << out;
+  EXPECT_NE(out.find("port must be"), std::string::npos) << out;
+}
+
+}  // namespace
