@@ -1,0 +1,118 @@
+#pragma once
+// fettle::planning - per-region grinding trajectories and their safety validation.
+//
+// Frames: base (robot base, table top z = 0, z up), part (the casting's frame; recipe ROIs are
+// in it), camera. T_target_source maps source points into target. Millimetres and radians.
+// Tool convention (same as the simulator): every pose is T_base_tool of the TCP, which sits at
+// the tool tip; the tool z axis points from the tip toward the spindle (away from the part).
+// A ball tool's sphere centre is TCP + R·z; a cylinder tool occupies TCP + [0, length]·z with
+// radius R. See docs/planning.md.
+#include <functional>
+#include <string>
+#include <vector>
+
+#include "fettle/config/cell.hpp"
+#include "fettle/config/part.hpp"
+#include "fettle/core/geometry.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/core/trajectory.hpp"
+#include "fettle/planning/fit.hpp"
+
+namespace fettle::planning {
+
+/// Signed distance (mm) of a part-frame point to the template solid: > 0 outside, < 0 inside.
+using SignedDistance = std::function<double(const Vec3& p_part)>;
+
+/// Everything the planner needs for one region (the daemon adapts the vision output to this).
+struct RegionInput {
+  const config::Region* region = nullptr;
+  const config::Tool* tool = nullptr;
+  Transform T_base_part = Transform::Identity();  ///< e.g. T_base_camera * T_camera_part
+  std::vector<Vec3> excess_points_part;            ///< material above the template, part frame
+  SignedDistance template_sdf;                     ///< the template surface, part frame
+};
+
+/// Planner limits and tunables (safety limits come from the cell's [safety]).
+struct PlannerSettings {
+  Vec3 workspace_min_mm{-1000.0, -1000.0, -100.0};
+  Vec3 workspace_max_mm{1000.0, 1000.0, 1200.0};
+  double tool_axis_cone_rad = deg_to_rad(60.0);  ///< tool axis within this of straight down
+  double max_speed_mm_s = 250.0;
+  double max_spindle_rpm = 12000.0;
+  double safe_height_mm = 100.0;    ///< air moves this far above the highest planned point
+  double air_speed_mm_s = 100.0;    ///< approach / air / retract (clamped to max_speed_mm_s)
+  double lead_mm = 5.0;             ///< lead-in / lead-out length of flash loops and passes
+  double max_backoff_mm = 10.0;     ///< how far a pose may back off to avoid a gouge
+  double flash_band_mm = 2.0;       ///< inlier band of the flash ellipse / line fits (flash width)
+  RansacOptions ransac{};
+  static PlannerSettings from(const config::SafetySection& safety);
+};
+
+/// The planned grinding moves of one region, in the base frame, without air moves.
+struct RegionPlan {
+  std::string region;
+  config::RegionType type = config::RegionType::riser;
+  std::vector<TrajectoryPoint> points;  ///< segment ids are local (0, 1, ...) until assembled
+  int segments = 0;
+  // diagnostics
+  Plane plane;                    ///< ring/circle: fitted parting plane (part frame)
+  Conic conic;                    ///< ring/circle: fitted ellipse in the plane's 2-D basis
+  Line line;                      ///< straight flash: fitted line (part frame)
+  double max_excess_mm = 0.0;     ///< riser/straight: D, largest height above the template
+  std::vector<double> layer_levels_mm;  ///< riser/straight: heights above the template per layer/pass
+};
+
+// --- the pose equations (Zhu et al. 2022, Eqs. 17–21) ---------------------------------------
+
+/// Chamfer grinding pose at contact point P: n the in-plane outward normal (from the conic's
+/// gradient), w the parting plane's normal, t = n × w the path tangent. The tool centre is
+/// Q = P + R (cos θ n + sin θ w) (θ = 45°: √2/2·R along n and along w).
+struct ChamferPose {
+  Vec3 n, w, t;
+  Vec3 tool_center;   ///< Q
+  Vec3 tool_axis;     ///< unit, toward the spindle: cos θ n + sin θ w
+  Transform T_part_tool;  ///< TCP frame: z = tool_axis, x = t, TCP = Q − R·z (= P)
+};
+ChamferPose chamfer_pose(const Vec3& P, const Vec3& n, const Vec3& w, double tool_radius_mm,
+                         double chamfer_rad);
+
+/// Riser layers: heights above the template for the layers that take D down to `allowance`
+/// (one if D ≤ depth_per_pass, else ⌈D/depth⌉ evenly spaced; D recomputed from the points
+/// after each layer). Empty if D ≤ allowance.
+std::vector<double> layer_levels(const std::vector<double>& heights_mm, double depth_per_pass_mm,
+                                 double allowance_mm);
+
+// --- planning -------------------------------------------------------------------------------
+
+/// Plans one region (no validation, no air moves). Errors name the region.
+Result<RegionPlan> plan_region(const RegionInput& input, const PlannerSettings& settings);
+
+/// The order of the regions (indices into `plans`) that minimises the air-move length
+/// (exhaustive for ≤ 8 regions, nearest neighbour + 2-opt beyond), starting with the region
+/// nearest `start_mm` when given.
+std::vector<std::size_t> order_regions(const std::vector<RegionPlan>& plans);
+/// Total length of the air moves between the regions in this order (end of one to start of next).
+double air_move_length_mm(const std::vector<RegionPlan>& plans, const std::vector<std::size_t>& order);
+
+/// Assembles the region plans in `order` with approach / retract moves at the safe height.
+Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& plans,
+                    const std::vector<std::size_t>& order, const PlannerSettings& settings);
+
+/// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge".
+/// The error names the region, the point index in the trajectory and the rule
+/// (code "planning.<rule>").
+Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs,
+                const PlannerSettings& settings);
+
+/// Plans every region, orders them, assembles and validates. A failing trajectory is never
+/// returned.
+Result<Trajectory> plan_part(const std::string& part_id, const std::vector<RegionInput>& inputs,
+                             const PlannerSettings& settings);
+
+/// The flange pose for a TCP pose: T_base_flange = T_base_tool · T_tool_flange.
+Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
+
+/// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool.
+double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf);
+
+}  // namespace fettle::planning

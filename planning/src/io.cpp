@@ -1,0 +1,165 @@
+// Trajectory files (JSON / CSV, compatible with fettle::sim::read_trajectory) and preview.png.
+#include "fettle/planning/io.hpp"
+
+#include <cmath>
+#include <fstream>
+#include <iomanip>
+#include <limits>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "fettle/core/atomic_file.hpp"
+#include "fettle/core/error.hpp"
+
+namespace fettle::planning {
+namespace {
+
+const char* kind_name(MoveKind k) {
+  switch (k) {
+    case MoveKind::approach: return "approach";
+    case MoveKind::grind: return "grind";
+    case MoveKind::air: return "air";
+    case MoveKind::retract: return "retract";
+  }
+  return "grind";
+}
+
+MoveKind kind_from(const std::string& s, const std::string& where) {
+  if (s == "approach") return MoveKind::approach;
+  if (s == "grind") return MoveKind::grind;
+  if (s == "air") return MoveKind::air;
+  if (s == "retract") return MoveKind::retract;
+  throw UserError(where + ": kind \"" + s + "\" is not one of approach, grind, air, retract");
+}
+
+}  // namespace
+
+Status write_trajectory_json(const std::filesystem::path& path, const Trajectory& trajectory) {
+  nlohmann::ordered_json j;
+  j["part_id"] = trajectory.part_id;
+  j["segment_regions"] = trajectory.segment_regions;
+  auto pts = nlohmann::ordered_json::array();
+  for (const auto& p : trajectory.points) {
+    const auto& x = p.T_base_tool.position_mm;
+    const auto& q = p.T_base_tool.orientation;
+    pts.push_back(nlohmann::ordered_json{{"x", x.x()}, {"y", x.y()}, {"z", x.z()}, {"qw", q.w()}, {"qx", q.x()},
+                                         {"qy", q.y()}, {"qz", q.z()}, {"speed_mm_s", p.speed_mm_s},
+                                         {"spindle_rpm", p.spindle_rpm}, {"segment", p.segment},
+                                         {"kind", kind_name(p.kind)}});
+  }
+  j["points"] = std::move(pts);
+  return write_file_atomic(path, j.dump(1) + "\n");
+}
+
+Status write_trajectory_csv(const std::filesystem::path& path, const Trajectory& trajectory) {
+  std::ostringstream os;
+  os << "x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment,kind\n";
+  os << std::setprecision(std::numeric_limits<double>::max_digits10);
+  for (const auto& p : trajectory.points) {
+    const auto& x = p.T_base_tool.position_mm;
+    const auto& q = p.T_base_tool.orientation;
+    os << x.x() << ',' << x.y() << ',' << x.z() << ',' << q.w() << ',' << q.x() << ',' << q.y() << ',' << q.z()
+       << ',' << p.speed_mm_s << ',' << p.spindle_rpm << ',' << p.segment << ',' << kind_name(p.kind) << '\n';
+  }
+  return write_file_atomic(path, os.str());
+}
+
+Trajectory read_trajectory_json(const std::filesystem::path& path) {
+  std::ifstream in(path);
+  if (!in) throw UserError(path.string() + ": cannot open the trajectory file");
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {
+    throw UserError(path.string() + ": not valid JSON: " + e.what());
+  }
+  Trajectory t;
+  try {
+    t.part_id = j.at("part_id").get<std::string>();
+    t.segment_regions = j.at("segment_regions").get<std::vector<std::string>>();
+    const auto& pts = j.at("points");
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const auto& p = pts[i];
+      const std::string where = path.string() + ": points[" + std::to_string(i) + "]";
+      try {
+        TrajectoryPoint q;
+        q.T_base_tool.position_mm = Vec3(p.at("x").get<double>(), p.at("y").get<double>(), p.at("z").get<double>());
+        q.T_base_tool.orientation = Quat(p.at("qw").get<double>(), p.at("qx").get<double>(), p.at("qy").get<double>(),
+                                         p.at("qz").get<double>());
+        q.speed_mm_s = p.at("speed_mm_s").get<double>();
+        q.spindle_rpm = p.at("spindle_rpm").get<double>();
+        q.segment = p.at("segment").get<int>();
+        if (p.contains("kind")) q.kind = kind_from(p.at("kind").get<std::string>(), where);
+        t.points.push_back(q);
+      } catch (const nlohmann::json::exception& e) {
+        throw UserError(where + ": " + e.what());
+      }
+    }
+  } catch (const nlohmann::json::exception& e) {
+    throw UserError(path.string() + ": " + e.what());
+  }
+  return t;
+}
+
+Status write_preview_png(const std::filesystem::path& path, const std::vector<PreviewPoint>& cloud,
+                         const Trajectory& trajectory) {
+  // extent of everything drawn (base frame)
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const auto& p : cloud) lo = lo.cwiseMin(p.position_base_mm), hi = hi.cwiseMax(p.position_base_mm);
+  for (const auto& p : trajectory.points)
+    lo = lo.cwiseMin(p.T_base_tool.position_mm), hi = hi.cwiseMax(p.T_base_tool.position_mm);
+  if (!lo.allFinite()) return Error{"planning.preview", path.string() + ": nothing to draw (no points, no trajectory)"};
+  lo -= Vec3::Constant(5.0), hi += Vec3::Constant(5.0);
+  const int panel = 600, margin = 20;
+  const double scale = panel / std::max({hi.x() - lo.x(), hi.y() - lo.y(), hi.z() - lo.z(), 1.0});
+  cv::Mat img(panel + 2 * margin + 20, 2 * panel + 3 * margin, CV_8UC3, cv::Scalar(30, 30, 30));
+  double max_excess = 0.5;
+  for (const auto& p : cloud) max_excess = std::max(max_excess, p.excess_mm);
+  cv::Mat lut(1, 256, CV_8UC1);
+  for (int i = 0; i < 256; ++i) lut.at<unsigned char>(0, i) = static_cast<unsigned char>(i);
+  cv::Mat colors;
+  cv::applyColorMap(lut, colors, cv::COLORMAP_TURBO);
+  // view 0: top (x right, y up); view 1: side (x right, z up)
+  auto to_px = [&](const Vec3& p, int view) {
+    const double u = (p.x() - lo.x()) * scale;
+    const double v = view == 0 ? (p.y() - lo.y()) * scale : (p.z() - lo.z()) * scale;
+    return cv::Point(margin + view * (panel + margin) + static_cast<int>(u), margin + 20 + panel - static_cast<int>(v));
+  };
+  for (int view = 0; view < 2; ++view) {
+    for (const auto& p : cloud) {
+      const int c = static_cast<int>(std::clamp(p.excess_mm / max_excess, 0.0, 1.0) * 255.0);
+      const auto col = p.excess_mm > 0 ? colors.at<cv::Vec3b>(0, c) : cv::Vec3b(110, 110, 110);
+      const cv::Point px = to_px(p.position_base_mm, view);
+      if (px.x >= 0 && px.y >= 0 && px.x < img.cols && px.y < img.rows) img.at<cv::Vec3b>(px) = col;
+    }
+    for (std::size_t i = 1; i < trajectory.points.size(); ++i) {
+      const auto& a = trajectory.points[i - 1];
+      const auto& b = trajectory.points[i];
+      const bool grind = b.kind == MoveKind::grind;
+      cv::line(img, to_px(a.T_base_tool.position_mm, view), to_px(b.T_base_tool.position_mm, view),
+               grind ? cv::Scalar(255, 255, 255) : cv::Scalar(0, 200, 255), 1, cv::LINE_AA);
+    }
+    cv::putText(img, view == 0 ? "top (x-y), base frame" : "side (x-z), base frame",
+                cv::Point(margin + view * (panel + margin), margin + 8), cv::FONT_HERSHEY_SIMPLEX, 0.5,
+                cv::Scalar(230, 230, 230), 1, cv::LINE_AA);
+  }
+  std::vector<unsigned char> buf;
+  if (!cv::imencode(".png", img, buf)) return Error{"planning.preview", path.string() + ": PNG encoding failed"};
+  return write_file_atomic(path, std::string_view(reinterpret_cast<const char*>(buf.data()), buf.size()));
+}
+
+Status write_outputs(const std::filesystem::path& dir, const Trajectory& trajectory,
+                     const std::vector<PreviewPoint>& cloud) {
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  if (ec) return Error{"planning.output", dir.string() + ": cannot create the output directory: " + ec.message()};
+  if (Status s = write_trajectory_json(dir / "trajectory.json", trajectory); !s) return s;
+  if (Status s = write_trajectory_csv(dir / "trajectory.csv", trajectory); !s) return s;
+  return write_preview_png(dir / "preview.png", cloud, trajectory);
+}
+
+}  // namespace fettle::planning

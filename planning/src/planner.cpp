@@ -1,0 +1,592 @@
+// Per-region grinding trajectories (ring / circle flash, riser, straight flash), region
+// ordering, assembly with approach / retract moves, and validation.
+#include "fettle/planning/planner.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <numeric>
+#include <optional>
+#include <sstream>
+
+namespace fettle::planning {
+namespace {
+
+constexpr std::size_t kMinRegionPoints = 20;
+
+Error region_error(const std::string& region, const std::string& code, const std::string& what) {
+  return Error{"planning." + code, "region '" + region + "': " + what};
+}
+
+std::string fmt(double v, int precision = 2) {
+  std::ostringstream os;
+  os.setf(std::ios::fixed);
+  os.precision(precision);
+  os << v;
+  return os.str();
+}
+
+std::string fmt(const Vec3& v) { return "(" + fmt(v.x()) + ", " + fmt(v.y()) + ", " + fmt(v.z()) + ")"; }
+
+double tool_radius(const config::Tool& tool) { return tool.diameter_mm / 2.0; }
+
+/// Unit vector perpendicular to `a`.
+Vec3 any_perpendicular(const Vec3& a) {
+  const Vec3 ref = std::abs(a.x()) < 0.9 ? Vec3::UnitX() : Vec3::UnitY();
+  return (ref - ref.dot(a) * a).normalized();
+}
+
+Vec3 sdf_gradient(const SignedDistance& sdf, const Vec3& p, double h = 0.5) {
+  Vec3 g;
+  for (int k = 0; k < 3; ++k) {
+    Vec3 dp = Vec3::Zero();
+    dp(k) = h;
+    g(k) = (sdf(p + dp) - sdf(p - dp)) / (2 * h);
+  }
+  return g;
+}
+
+/// s such that sdf(X0 + s·dir) = level, searching from s = 0 along ±dir (dir points into the
+/// body, where sdf decreases). nullopt when no crossing within max_mm.
+std::optional<double> find_level(const SignedDistance& sdf, const Vec3& X0, const Vec3& dir, double level,
+                                 double max_mm = 60.0, double step_mm = 0.5) {
+  auto g = [&](double s) { return sdf(X0 + s * dir) - level; };
+  const double g0 = g(0.0);
+  if (g0 == 0.0) return 0.0;
+  const double sign = g0 > 0 ? 1.0 : -1.0;  // march into the body when outside the level set
+  double a = 0.0, ga = g0;
+  for (double s = step_mm; s <= max_mm + 1e-9; s += step_mm) {
+    const double b = sign * s;
+    const double gb = g(b);
+    if ((ga > 0) != (gb > 0)) {
+      double lo = a, hi = b, glo = ga;
+      for (int it = 0; it < 30; ++it) {
+        const double mid = 0.5 * (lo + hi);
+        const double gm = g(mid);
+        if ((gm > 0) == (glo > 0)) lo = mid, glo = gm;
+        else hi = mid;
+      }
+      return 0.5 * (lo + hi);
+    }
+    a = b, ga = gb;
+  }
+  return std::nullopt;
+}
+
+Transform frame_from(const Vec3& origin, const Vec3& z_axis, const Vec3& x_hint) {
+  const Vec3 z = z_axis.normalized();
+  Vec3 x = x_hint - x_hint.dot(z) * z;
+  x = x.norm() > 1e-9 ? x.normalized() : any_perpendicular(z);
+  const Vec3 y = z.cross(x);
+  Transform T = Transform::Identity();
+  T.linear().col(0) = x;
+  T.linear().col(1) = y;
+  T.linear().col(2) = z;
+  T.translation() = origin;
+  return T;
+}
+
+/// Moves the tool along `dir` until it keeps at least `clearance_mm` from the template.
+/// Returns false if it cannot within max_mm.
+bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDistance& sdf, const Vec3& dir,
+              double clearance_mm, double max_mm) {
+  auto pen = [&](double s) {
+    Transform T = T_part_tool;
+    T.translation() += s * dir;
+    return tool_penetration_mm(tool, T, sdf) + clearance_mm;
+  };
+  if (pen(0.0) <= 1e-6) return true;
+  if (pen(max_mm) > 1e-6) return false;
+  double lo = 0.0, hi = max_mm;
+  for (int it = 0; it < 25; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    (pen(mid) > 1e-6 ? lo : hi) = mid;
+  }
+  T_part_tool.translation() += hi * dir;
+  return true;
+}
+
+TrajectoryPoint make_point(const Transform& T_base_part, const Transform& T_part_tool, double speed, double rpm,
+                           int segment, MoveKind kind) {
+  TrajectoryPoint p;
+  p.T_base_tool = Pose::from_transform(T_base_part * T_part_tool);
+  p.speed_mm_s = speed;
+  p.spindle_rpm = rpm;
+  p.segment = segment;
+  p.kind = kind;
+  return p;
+}
+
+// --- ring / circle flash ----------------------------------------------------------------------
+
+Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
+  const auto& region = *in.region;
+  const auto& tool = *in.tool;
+  const auto& pts = in.excess_points_part;
+  RansacOptions plane_opts = settings.ransac;
+  plane_opts.inlier_mm = std::max(plane_opts.inlier_mm, 1.0);
+  auto plane = fit_plane_ransac(pts, plane_opts);
+  if (!plane) return region_error(region.name, "fit", "no parting plane could be fitted to the excess points");
+  if (plane->normal.z() < 0) plane->normal = -plane->normal, plane->d = -plane->d;
+  plan.plane = *plane;
+  const Vec3 w = plane->normal;
+  Vec3 centroid = Vec3::Zero();
+  for (const auto& p : pts) centroid += p;
+  centroid /= static_cast<double>(pts.size());
+  const Vec3 origin = plane->project(centroid);
+  const Vec3 e1 = any_perpendicular(w);
+  const Vec3 e2 = w.cross(e1);
+  std::vector<Eigen::Vector2d> uv;
+  uv.reserve(pts.size());
+  for (const auto& p : pts) uv.emplace_back((p - origin).dot(e1), (p - origin).dot(e2));
+  RansacOptions conic_opts = settings.ransac;
+  conic_opts.inlier_mm = std::max(conic_opts.inlier_mm, settings.flash_band_mm);
+  auto conic = fit_ellipse_ransac(uv, conic_opts);
+  if (!conic || !conic->is_ellipse())
+    return region_error(region.name, "fit",
+                        "no ellipse could be fitted to the flash points projected onto the parting plane; "
+                        "check the region's ROI and the scan");
+  plan.conic = *conic;
+  const auto geom = ellipse_geometry(*conic);
+  if (!geom) return region_error(region.name, "fit", "the fitted conic is not an ellipse");
+
+  // arc length along the ellipse, then contact points at the configured spacing (≤ 1 mm)
+  const double spacing = std::clamp(region.point_spacing_mm, 0.05, 1.0);
+  const int dense = std::max(2000, static_cast<int>(2 * std::numbers::pi * geom->semi_major / 0.05));
+  std::vector<double> cum(static_cast<std::size_t>(dense) + 1, 0.0);
+  for (int k = 1; k <= dense; ++k) {
+    const double t0 = 2 * std::numbers::pi * (k - 1) / dense, t1 = 2 * std::numbers::pi * k / dense;
+    cum[static_cast<std::size_t>(k)] = cum[static_cast<std::size_t>(k) - 1] + (geom->point(t1) - geom->point(t0)).norm();
+  }
+  const double perimeter = cum.back();
+  const double total = perimeter + std::max(0.0, region.overlap_mm);
+  const auto count = static_cast<std::size_t>(std::ceil(total / spacing));
+  const double R = tool_radius(tool);
+  const double theta = deg_to_rad(region.chamfer_deg);
+  std::vector<Transform> poses;
+  std::vector<Vec3> normals;
+  poses.reserve(count + 1);
+  for (std::size_t i = 0; i <= count; ++i) {
+    // travel along t = n × w, i.e. clockwise about w: walk the parameter backwards
+    const double s = std::fmod(perimeter - std::min(total, static_cast<double>(i) * spacing) + 2 * perimeter, perimeter);
+    const auto it = std::lower_bound(cum.begin(), cum.end(), s);
+    const auto k = static_cast<std::size_t>(std::clamp<std::ptrdiff_t>(it - cum.begin(), 1, dense));
+    const double f = (s - cum[k - 1]) / std::max(1e-12, cum[k] - cum[k - 1]);
+    const double t = 2 * std::numbers::pi * (static_cast<double>(k) - 1 + f) / dense;
+    const Eigen::Vector2d q = geom->point(t);
+    Eigen::Vector2d g = conic->gradient(q);
+    if ((q - geom->center).dot(g) < 0) g = -g;  // outward
+    const Vec3 P0 = origin + q.x() * e1 + q.y() * e2;
+    const Vec3 n = (g.x() * e1 + g.y() * e2).normalized();
+    const auto s_in = find_level(in.template_sdf, P0, -n, region.allowance_mm, 3.0 * settings.flash_band_mm + 20.0);
+    if (!s_in)
+      return region_error(region.name, "no_surface",
+                          "no template surface inward of contact point " + std::to_string(i) + " at " + fmt(P0) +
+                              " (part frame); the ellipse does not surround the part's edge");
+    const Vec3 P = P0 - *s_in * n;
+    ChamferPose cp = chamfer_pose(P, n, w, R, theta);
+    if (!back_off(tool, cp.T_part_tool, in.template_sdf, cp.tool_axis, region.allowance_mm, settings.max_backoff_mm))
+      return region_error(region.name, "gouge",
+                          "contact point " + std::to_string(i) + " at " + fmt(P) +
+                              ": the tool cannot reach it without cutting the template (backed off " +
+                              fmt(settings.max_backoff_mm) + " mm); use a smaller tool or another chamfer_deg");
+    poses.push_back(cp.T_part_tool);
+    normals.push_back(n);
+  }
+  const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
+  auto lead = [&](const Transform& T, const Vec3& n) {
+    Transform L = T;
+    L.translation() += settings.lead_mm * n;
+    return L;
+  };
+  plan.points.push_back(make_point(in.T_base_part, lead(poses.front(), normals.front()), feed, rpm, 0, MoveKind::grind));
+  for (const auto& T : poses) plan.points.push_back(make_point(in.T_base_part, T, feed, rpm, 0, MoveKind::grind));
+  plan.points.push_back(make_point(in.T_base_part, lead(poses.back(), normals.back()), feed, rpm, 0, MoveKind::grind));
+  plan.segments = 1;
+  return plan;
+}
+
+// --- riser and straight flash: layered passes ----------------------------------------------------
+
+struct LayerFrame {
+  Vec3 up;       ///< removal direction (template face normal)
+  Vec3 base;     ///< a point on the template face
+};
+
+std::optional<LayerFrame> layer_frame(const RegionInput& in, const Vec3& at) {
+  Vec3 up = sdf_gradient(in.template_sdf, at);
+  if (!(up.norm() > 0.5)) return std::nullopt;
+  up.normalize();
+  const auto s = find_level(in.template_sdf, at, -up, 0.0, 80.0);
+  if (!s) return std::nullopt;
+  return LayerFrame{up, at - *s * up};
+}
+
+/// Air points lifting off after `from` and coming down onto `to` (part frame tool poses).
+void add_lift(RegionPlan& plan, const RegionInput& in, const Transform& from, const Transform& to, const Vec3& up,
+              double lift_mm, double speed, double rpm, int segment) {
+  Transform a = from, b = to;
+  a.translation() += lift_mm * up;
+  b.translation() += lift_mm * up;
+  plan.points.push_back(make_point(in.T_base_part, a, speed, rpm, segment, MoveKind::air));
+  plan.points.push_back(make_point(in.T_base_part, b, speed, rpm, segment, MoveKind::air));
+}
+
+Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
+  const auto& region = *in.region;
+  const auto& tool = *in.tool;
+  const auto& pts = in.excess_points_part;
+  Vec3 centroid = Vec3::Zero();
+  for (const auto& p : pts) centroid += p;
+  centroid /= static_cast<double>(pts.size());
+  const auto frame = layer_frame(in, centroid);
+  if (!frame) return region_error(region.name, "no_surface", "no template face below the riser points at " + fmt(centroid));
+  std::vector<double> heights;
+  heights.reserve(pts.size());
+  for (const auto& p : pts) heights.push_back(in.template_sdf(p));
+  plan.max_excess_mm = *std::max_element(heights.begin(), heights.end());
+  plan.layer_levels_mm = layer_levels(heights, region.depth_per_pass_mm, region.allowance_mm);
+  if (plan.layer_levels_mm.empty()) return plan;
+
+  const Vec3 up = frame->up;
+  const Vec3 e1 = any_perpendicular(up);
+  const Vec3 e2 = up.cross(e1);
+  double amin = 1e300, amax = -1e300, bmin = 1e300, bmax = -1e300;
+  for (const auto& p : pts) {
+    const double a = (p - frame->base).dot(e1), b = (p - frame->base).dot(e2);
+    amin = std::min(amin, a), amax = std::max(amax, a), bmin = std::min(bmin, b), bmax = std::max(bmax, b);
+  }
+  amin -= region.margin_mm, amax += region.margin_mm, bmin -= region.margin_mm, bmax += region.margin_mm;
+  const double step = std::max(0.1, region.stepover_mm);
+  const double spacing = std::clamp(region.point_spacing_mm, 0.05, step);
+  const auto rows = static_cast<int>(std::ceil((bmax - bmin) / step - 1e-9)) + 1;
+  const auto cols = static_cast<int>(std::ceil((amax - amin) / spacing - 1e-9)) + 1;
+  const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
+  const double air = std::min(settings.air_speed_mm_s, settings.max_speed_mm_s);
+  const double lift = plan.max_excess_mm + 5.0;
+  int segment = 0;
+  for (double level : plan.layer_levels_mm) {
+    std::vector<Transform> layer;
+    for (int r = 0; r < rows; ++r) {
+      const double b = std::min(bmax, bmin + r * step);
+      for (int c = 0; c < cols; ++c) {
+        const int cc = (r % 2 == 0) ? c : cols - 1 - c;  // boustrophedon raster
+        const double a = std::min(amax, amin + cc * spacing);
+        Transform T = frame_from(frame->base + a * e1 + b * e2 + level * up, up, (r % 2 == 0) ? e1 : Vec3(-e1));
+        if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm))
+          return region_error(region.name, "gouge",
+                              "layer " + std::to_string(segment) + " raster point at " + fmt(T.translation()) +
+                                  ": the tool cannot pass without cutting the template");
+        layer.push_back(T);
+      }
+    }
+    if (segment > 0) add_lift(plan, in, plan.points.empty() ? layer.front() : in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(),
+                              layer.front(), up, lift, air, rpm, segment);
+    for (const auto& T : layer) plan.points.push_back(make_point(in.T_base_part, T, feed, rpm, segment, MoveKind::grind));
+    ++segment;
+  }
+  plan.segments = segment;
+  return plan;
+}
+
+Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
+  const auto& region = *in.region;
+  const auto& tool = *in.tool;
+  const auto& pts = in.excess_points_part;
+  RansacOptions opts = settings.ransac;
+  opts.inlier_mm = std::max(opts.inlier_mm, settings.flash_band_mm);
+  auto line = fit_line_ransac(pts, opts);
+  if (!line) return region_error(region.name, "fit", "no line could be fitted to the flash points");
+  plan.line = *line;
+  const auto frame = layer_frame(in, line->point);
+  if (!frame) return region_error(region.name, "no_surface", "no template face below the flash line at " + fmt(line->point));
+  const Vec3 up = frame->up;
+  Vec3 t = line->direction - line->direction.dot(up) * up;
+  if (t.norm() < 1e-6) return region_error(region.name, "fit", "the fitted flash line is along the face normal");
+  t.normalize();
+  std::vector<double> heights;
+  double smin = 1e300, smax = -1e300;
+  for (const auto& p : pts) {
+    heights.push_back(in.template_sdf(p));
+    const double s = (p - frame->base).dot(t);
+    smin = std::min(smin, s), smax = std::max(smax, s);
+  }
+  plan.max_excess_mm = *std::max_element(heights.begin(), heights.end());
+  if (plan.max_excess_mm <= region.allowance_mm) return plan;
+  const int passes = std::max(1, region.passes);
+  for (int k = 1; k <= passes; ++k)
+    plan.layer_levels_mm.push_back(plan.max_excess_mm - k * (plan.max_excess_mm - region.allowance_mm) / passes);
+  const double ext = tool_radius(tool) + settings.lead_mm;
+  smin -= ext, smax += ext;
+  const double spacing = std::clamp(region.point_spacing_mm, 0.05, 1.0);
+  const auto n = static_cast<int>(std::ceil((smax - smin) / spacing - 1e-9)) + 1;
+  const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
+  const double air = std::min(settings.air_speed_mm_s, settings.max_speed_mm_s);
+  int segment = 0;
+  for (double level : plan.layer_levels_mm) {
+    std::vector<Transform> pass;
+    const bool forward = segment % 2 == 0;
+    for (int i = 0; i < n; ++i) {
+      const double s = std::min(smax, smin + (forward ? i : n - 1 - i) * spacing);
+      Transform T = frame_from(frame->base + s * t + level * up, up, forward ? t : Vec3(-t));
+      if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm))
+        return region_error(region.name, "gouge",
+                            "pass " + std::to_string(segment) + " point at " + fmt(T.translation()) +
+                                ": the tool cannot pass without cutting the template");
+      pass.push_back(T);
+    }
+    if (segment > 0)
+      add_lift(plan, in, in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(), pass.front(), up,
+               plan.max_excess_mm + 5.0, air, rpm, segment);
+    for (const auto& T : pass) plan.points.push_back(make_point(in.T_base_part, T, feed, rpm, segment, MoveKind::grind));
+    ++segment;
+  }
+  plan.segments = segment;
+  return plan;
+}
+
+Vec3 first_position(const RegionPlan& p) { return p.points.front().T_base_tool.position_mm; }
+Vec3 last_position(const RegionPlan& p) { return p.points.back().T_base_tool.position_mm; }
+
+double plans_top_z(const std::vector<RegionPlan>& plans) {
+  double top = -std::numeric_limits<double>::infinity();
+  for (const auto& p : plans)
+    for (const auto& q : p.points) top = std::max(top, q.T_base_tool.position_mm.z());
+  return top;
+}
+
+double air_hop(const Vec3& from, const Vec3& to, double z_safe) {
+  return std::max(0.0, z_safe - from.z()) + (to - from).head<2>().norm() + std::max(0.0, z_safe - to.z());
+}
+
+}  // namespace
+
+PlannerSettings PlannerSettings::from(const config::SafetySection& safety) {
+  PlannerSettings s;
+  s.workspace_min_mm = Vec3(safety.workspace_min_mm[0], safety.workspace_min_mm[1], safety.workspace_min_mm[2]);
+  s.workspace_max_mm = Vec3(safety.workspace_max_mm[0], safety.workspace_max_mm[1], safety.workspace_max_mm[2]);
+  s.tool_axis_cone_rad = deg_to_rad(safety.tool_axis_cone_deg);
+  s.max_speed_mm_s = safety.max_speed_mm_s;
+  s.max_spindle_rpm = safety.max_spindle_rpm;
+  s.safe_height_mm = safety.safe_height_mm;
+  s.air_speed_mm_s = std::min(s.air_speed_mm_s, safety.max_speed_mm_s);
+  return s;
+}
+
+ChamferPose chamfer_pose(const Vec3& P, const Vec3& n_in, const Vec3& w_in, double tool_radius_mm,
+                         double chamfer_rad) {
+  ChamferPose cp;
+  cp.w = w_in.normalized();
+  cp.n = (n_in - n_in.dot(cp.w) * cp.w).normalized();
+  cp.t = cp.n.cross(cp.w);
+  cp.tool_axis = std::cos(chamfer_rad) * cp.n + std::sin(chamfer_rad) * cp.w;
+  cp.tool_center = P + tool_radius_mm * cp.tool_axis;
+  cp.T_part_tool = frame_from(cp.tool_center - tool_radius_mm * cp.tool_axis, cp.tool_axis, cp.t);
+  return cp;
+}
+
+std::vector<double> layer_levels(const std::vector<double>& heights_mm, double depth_per_pass_mm,
+                                 double allowance_mm) {
+  std::vector<double> levels;
+  std::vector<double> h = heights_mm;
+  const double depth = std::max(1e-3, depth_per_pass_mm);
+  for (int guard = 0; guard < 10000; ++guard) {
+    const double D = h.empty() ? 0.0 : *std::max_element(h.begin(), h.end());
+    if (D <= allowance_mm + 1e-9) break;
+    // ⌈(D − allowance)/depth⌉ evenly spaced layers: the count drops by one per layer
+    const double layers = D <= depth ? 1.0 : std::max(1.0, std::ceil((D - allowance_mm) / depth - 1e-9));
+    const double level = std::max(allowance_mm, D - (D - allowance_mm) / layers);
+    levels.push_back(level);
+    for (auto& v : h) v = std::min(v, level);  // the layer removes everything above its level
+  }
+  return levels;
+}
+
+double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf) {
+  const double R = tool_radius(tool);
+  const Vec3 z = T_part_tool.linear().col(2);
+  const Vec3 tip = T_part_tool.translation();
+  if (tool.shape == config::ToolShape::ball) return R - sdf(tip + R * z);  // exact for a true distance
+  // cylinder (cones conservatively as cylinders): end face discs, rim rings
+  double worst = -std::numeric_limits<double>::infinity();
+  const Vec3 x = T_part_tool.linear().col(0), y = T_part_tool.linear().col(1);
+  worst = std::max(worst, -sdf(tip));
+  const double L = std::max(0.0, tool.length_mm);
+  for (double frac : {0.5, 1.0}) {
+    const double r = frac * R;
+    const int m = frac < 1.0 ? 8 : 24;
+    for (int k = 0; k < m; ++k) {
+      const double a = 2 * std::numbers::pi * k / m;
+      const Vec3 p = tip + r * (std::cos(a) * x + std::sin(a) * y);
+      worst = std::max(worst, -sdf(p));
+      if (frac == 1.0) worst = std::max(worst, -sdf(p + 0.5 * L * z));
+      if (frac == 1.0) worst = std::max(worst, -sdf(p + L * z));
+    }
+  }
+  return worst;
+}
+
+Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
+  Transform T_flange_tool = Transform::Identity();
+  T_flange_tool.translation() = Vec3(tool.tcp_mm[0], tool.tcp_mm[1], tool.tcp_mm[2]);
+  return T_base_tool * T_flange_tool.inverse();
+}
+
+Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& settings) {
+  if (in.region == nullptr || in.tool == nullptr || !in.template_sdf)
+    return Error{"planning.input", "a region input lacks its region, tool or template (a bug in the caller)"};
+  RegionPlan plan;
+  plan.region = in.region->name;
+  plan.type = in.region->type;
+  if (in.tool->diameter_mm <= 0)
+    return region_error(plan.region, "input", "tool '" + in.tool->name + "' has no diameter");
+  if (in.excess_points_part.size() < kMinRegionPoints) return plan;  // nothing (left) to grind
+  switch (in.region->type) {
+    case config::RegionType::ring_flash:
+    case config::RegionType::circle_flash:
+      return plan_flash_loop(in, settings, std::move(plan));
+    case config::RegionType::riser:
+      return plan_riser(in, settings, std::move(plan));
+    case config::RegionType::straight_flash:
+      return plan_straight(in, settings, std::move(plan));
+  }
+  return region_error(plan.region, "input", "unknown region type");
+}
+
+double air_move_length_mm(const std::vector<RegionPlan>& plans, const std::vector<std::size_t>& order) {
+  const double z_safe = plans_top_z(plans);
+  double total = 0.0;
+  for (std::size_t k = 1; k < order.size(); ++k)
+    total += air_hop(last_position(plans[order[k - 1]]), first_position(plans[order[k]]), z_safe);
+  return total;
+}
+
+std::vector<std::size_t> order_regions(const std::vector<RegionPlan>& plans) {
+  std::vector<std::size_t> idx;
+  for (std::size_t i = 0; i < plans.size(); ++i)
+    if (!plans[i].points.empty()) idx.push_back(i);
+  if (idx.size() <= 2) return idx;  // a reversal costs the same
+  std::vector<std::size_t> best = idx;
+  double best_len = air_move_length_mm(plans, best);
+  if (idx.size() <= 8) {
+    std::vector<std::size_t> perm = idx;
+    std::sort(perm.begin(), perm.end());
+    do {
+      const double len = air_move_length_mm(plans, perm);
+      if (len < best_len - 1e-9) best_len = len, best = perm;
+    } while (std::next_permutation(perm.begin(), perm.end()));
+    return best;
+  }
+  for (std::size_t start = 0; start < idx.size(); ++start) {  // nearest neighbour from each start
+    std::vector<std::size_t> order{idx[start]};
+    std::vector<bool> used(plans.size(), false);
+    used[idx[start]] = true;
+    while (order.size() < idx.size()) {
+      std::size_t pick = 0;
+      double d = std::numeric_limits<double>::infinity();
+      for (auto j : idx)
+        if (!used[j]) {
+          const double dj = (first_position(plans[j]) - last_position(plans[order.back()])).head<2>().norm();
+          if (dj < d) d = dj, pick = j;
+        }
+      used[pick] = true;
+      order.push_back(pick);
+    }
+    const double len = air_move_length_mm(plans, order);
+    if (len < best_len - 1e-9) best_len = len, best = order;
+  }
+  return best;
+}
+
+Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& plans,
+                    const std::vector<std::size_t>& order, const PlannerSettings& settings) {
+  Trajectory traj;
+  traj.part_id = part_id;
+  const double z_safe = plans_top_z(plans) + settings.safe_height_mm;
+  const double air = std::min(settings.air_speed_mm_s, settings.max_speed_mm_s);
+  for (auto i : order) {
+    const auto& plan = plans[i];
+    if (plan.points.empty()) continue;
+    const int offset = static_cast<int>(traj.segment_regions.size());
+    for (int s = 0; s < std::max(1, plan.segments); ++s) traj.segment_regions.push_back(plan.region);
+    TrajectoryPoint approach = plan.points.front();
+    approach.T_base_tool.position_mm.z() = z_safe;
+    approach.speed_mm_s = air;
+    approach.kind = MoveKind::approach;
+    approach.segment = offset;
+    traj.points.push_back(approach);
+    for (auto q : plan.points) {
+      q.segment += offset;
+      traj.points.push_back(q);
+    }
+    TrajectoryPoint retract = plan.points.back();
+    retract.T_base_tool.position_mm.z() = z_safe;
+    retract.speed_mm_s = air;
+    retract.kind = MoveKind::retract;
+    retract.segment = offset + std::max(1, plan.segments) - 1;
+    traj.points.push_back(retract);
+  }
+  return traj;
+}
+
+Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs, const PlannerSettings& settings) {
+  std::map<std::string, const RegionInput*> by_name;
+  for (const auto& in : inputs)
+    if (in.region != nullptr) by_name[in.region->name] = &in;
+  const double cos_cone = std::cos(settings.tool_axis_cone_rad);
+  for (std::size_t i = 0; i < trajectory.points.size(); ++i) {
+    const auto& p = trajectory.points[i];
+    const std::string region = p.segment >= 0 && static_cast<std::size_t>(p.segment) < trajectory.segment_regions.size()
+                                   ? trajectory.segment_regions[static_cast<std::size_t>(p.segment)]
+                                   : std::string("?");
+    auto fail = [&](const std::string& rule, const std::string& what) {
+      return Error{"planning." + rule, "region '" + region + "', point " + std::to_string(i) + ", rule " + rule + ": " + what};
+    };
+    const Vec3& x = p.T_base_tool.position_mm;
+    const Quat& q = p.T_base_tool.orientation;
+    if (!x.allFinite() || !q.coeffs().allFinite() || std::abs(q.norm() - 1.0) > 1e-6)
+      return fail("finite", "the pose is not finite or its quaternion is not unit length (a planner bug)");
+    if ((x.array() < settings.workspace_min_mm.array()).any() || (x.array() > settings.workspace_max_mm.array()).any())
+      return fail("workspace", "position " + fmt(x) + " mm (base) is outside the workspace box " +
+                                   fmt(settings.workspace_min_mm) + " .. " + fmt(settings.workspace_max_mm) +
+                                   "; check the part placement, T_base_camera and [safety] workspace_*_mm");
+    const Vec3 axis = q.toRotationMatrix().col(2);
+    if (axis.z() < cos_cone - 1e-9)
+      return fail("tool_axis_cone", "the tool axis is " + fmt(rad_to_deg(std::acos(std::clamp(axis.z(), -1.0, 1.0))), 1) +
+                                        " deg from straight down, more than tool_axis_cone_deg = " +
+                                        fmt(rad_to_deg(settings.tool_axis_cone_rad), 1) + "; lower chamfer_deg or widen the cone");
+    if (!(p.speed_mm_s > 0.0) || p.speed_mm_s > settings.max_speed_mm_s)
+      return fail("speed", "speed " + fmt(p.speed_mm_s) + " mm/s is outside (0, " + fmt(settings.max_speed_mm_s) +
+                               "] (max_speed_mm_s); lower the region's feed_mm_s");
+    if (p.spindle_rpm < 0.0 || p.spindle_rpm > settings.max_spindle_rpm || (p.kind == MoveKind::grind && p.spindle_rpm <= 0.0))
+      return fail("speed", "spindle speed " + fmt(p.spindle_rpm, 0) + " rpm is outside (0, " +
+                               fmt(settings.max_spindle_rpm, 0) + "] (max_spindle_rpm); fix the region's spindle_rpm");
+    const auto it = by_name.find(region);
+    if (it == by_name.end())
+      return fail("input", "the segment " + std::to_string(p.segment) + " names no planned region");
+    const RegionInput& in = *it->second;
+    const Transform T_part_tool = in.T_base_part.inverse() * p.T_base_tool.to_transform();
+    const double pen = tool_penetration_mm(*in.tool, T_part_tool, in.template_sdf);
+    if (pen > in.region->allowance_mm + 1e-6)
+      return fail("gouge", "the tool cuts " + fmt(pen, 3) + " mm into the template (allowed: " +
+                               fmt(in.region->allowance_mm, 3) + " mm)");
+  }
+  return {};
+}
+
+Result<Trajectory> plan_part(const std::string& part_id, const std::vector<RegionInput>& inputs,
+                             const PlannerSettings& settings) {
+  std::vector<RegionPlan> plans;
+  plans.reserve(inputs.size());
+  for (const auto& in : inputs) {
+    auto plan = plan_region(in, settings);
+    if (!plan) return plan.error();
+    plans.push_back(std::move(plan.value()));
+  }
+  Trajectory traj = assemble(part_id, plans, order_regions(plans), settings);
+  if (Status st = validate(traj, inputs, settings); !st) return st.error();
+  return traj;
+}
+
+}  // namespace fettle::planning

@@ -1,0 +1,183 @@
+// Region planning on the synthetic part: riser layers and allowance, ring / circle loops,
+// straight passes, region ordering.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "synthetic_part.hpp"
+
+namespace fettle::planning {
+namespace {
+
+using testing::make_scene;
+using testing::part_sdf;
+
+TEST(RiserLayers, OnePassWhenWithinTheDepthElseCeilDOverDepth) {
+  EXPECT_EQ(layer_levels({1.5, 0.3}, 2.0, 0.05).size(), 1U);
+  EXPECT_NEAR(layer_levels({1.5, 0.3}, 2.0, 0.05).back(), 0.05, 1e-12);
+  const auto ten = layer_levels({10.0, 4.0, 2.0}, 2.0, 0.05);
+  EXPECT_EQ(ten.size(), 5U);  // ⌈10 / 2⌉
+  const auto tenhalf = layer_levels({10.5}, 2.0, 0.05);
+  EXPECT_EQ(tenhalf.size(), 6U);  // ⌈10.5 / 2⌉
+  double previous = 10.5;
+  for (double level : tenhalf) {
+    EXPECT_LE(previous - level, 2.0 + 1e-9);  // no layer deeper than depth_per_pass
+    EXPECT_LT(level, previous);
+    previous = level;
+  }
+  EXPECT_NEAR(tenhalf.back(), 0.05, 1e-12);  // the last layer leaves the allowance
+  EXPECT_TRUE(layer_levels({0.04}, 2.0, 0.05).empty());  // nothing above the allowance
+}
+
+TEST(RiserPlan, LayersCoverTheFootprintAndLeaveTheAllowance) {
+  auto scene = make_scene();
+  const RegionInput& in = scene.inputs[1];
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  const double D = plan->max_excess_mm;
+  EXPECT_NEAR(D, 9.0 + 15.0 * std::tan(8.0 * std::numbers::pi / 180.0), 0.3);
+  EXPECT_EQ(plan->segments, static_cast<int>(std::ceil(D / 2.0)));
+  EXPECT_EQ(plan->layer_levels_mm.size(), static_cast<std::size_t>(plan->segments));
+  // last layer: ball tip 0.05 mm above the pad face (z = 45), everywhere
+  const int last = plan->segments - 1;
+  double xmin = 1e9, xmax = -1e9, ymin = 1e9, ymax = -1e9;
+  std::size_t last_points = 0;
+  for (const auto& p : plan->points) {
+    if (p.segment != last || p.kind != MoveKind::grind) continue;
+    ++last_points;
+    const Vec3& x = p.T_base_tool.position_mm;
+    EXPECT_NEAR(x.z(), 45.05, 1e-3);
+    EXPECT_NEAR(p.T_base_tool.orientation.toRotationMatrix().col(2).z(), 1.0, 1e-6);  // axis along the face normal
+    xmin = std::min(xmin, x.x()), xmax = std::max(xmax, x.x()), ymin = std::min(ymin, x.y()), ymax = std::max(ymax, x.y());
+  }
+  EXPECT_GT(last_points, 100U);
+  // footprint (radius 15 around (-82, 48)) plus the 3 mm margin
+  EXPECT_LE(xmin, -82.0 - 18.0 + 0.3);
+  EXPECT_GE(xmax, -82.0 + 18.0 - 0.3);
+  EXPECT_LE(ymin, 48.0 - 18.0 + 0.3);
+  EXPECT_GE(ymax, 48.0 + 18.0 - 0.3);
+  // raster rows at most stepover_mm apart
+  std::vector<double> rows;
+  for (const auto& p : plan->points)
+    if (p.segment == last && p.kind == MoveKind::grind) rows.push_back(p.T_base_tool.position_mm.y());
+  std::sort(rows.begin(), rows.end());
+  rows.erase(std::unique(rows.begin(), rows.end(), [](double a, double b) { return std::abs(a - b) < 1e-6; }), rows.end());
+  for (std::size_t i = 1; i < rows.size(); ++i) EXPECT_LE(rows[i] - rows[i - 1], 4.0 + 1e-6);
+}
+
+TEST(RingPlan, ClosedChamferLoopAtOneMillimetreSpacingWithOverlapAndLeads) {
+  auto scene = make_scene();
+  const RegionInput& in = scene.inputs[0];
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  // the fitted plane is the flange top, the ellipse a circle in the fin's band
+  EXPECT_GT(plan->plane.normal.z(), 0.999);
+  const auto e = ellipse_geometry(plan->conic);
+  ASSERT_TRUE(e);
+  EXPECT_NEAR(e->semi_major, e->semi_minor, 0.5);
+  EXPECT_GT(e->semi_minor, 45.0);
+  EXPECT_LT(e->semi_major, 48.5);
+  const auto& pts = plan->points;
+  ASSERT_GT(pts.size(), 290U);  // 2π·45 mm + 10 mm overlap at ≤ 1 mm
+  double travelled_deg = 0.0;
+  for (std::size_t i = 2; i + 1 < pts.size(); ++i) {  // the contact points, without lead-in / lead-out
+    const Vec3 a = pts[i - 1].T_base_tool.position_mm, b = pts[i].T_base_tool.position_mm;
+    EXPECT_LE((b - a).norm(), 1.0 + 1e-6) << "contact " << i;
+    travelled_deg += std::abs(std::remainder(std::atan2(b.y(), b.x()) - std::atan2(a.y(), a.x()), 2 * std::numbers::pi)) * 180.0 / std::numbers::pi;
+  }
+  EXPECT_GT(travelled_deg, 360.0 + 10.0);  // closed, with the 10 mm overlap (~12.7°)
+  for (std::size_t i = 1; i + 1 < pts.size(); ++i) {
+    const Transform T = pts[i].T_base_tool.to_transform();
+    const Vec3 z = T.linear().col(2);
+    const Vec3 radial = Vec3(T.translation().x(), T.translation().y(), 0.0).normalized();
+    EXPECT_NEAR(z.z(), std::sqrt(0.5), 1e-3);            // 45° chamfer: √2/2 along w
+    EXPECT_NEAR(z.dot(radial), std::sqrt(0.5), 2e-2);    // and √2/2 along n
+    const double r = std::hypot(T.translation().x(), T.translation().y());
+    EXPECT_NEAR(r, 45.05, 0.2);  // contact at the edge, the allowance outside
+    EXPECT_LE(tool_penetration_mm(*in.tool, T, part_sdf), 0.0);
+  }
+  // lead-in / lead-out: radially outside the first / last contact point
+  EXPECT_NEAR((pts.front().T_base_tool.position_mm - pts[1].T_base_tool.position_mm).norm(), 5.0, 1e-6);
+  EXPECT_NEAR((pts.back().T_base_tool.position_mm - pts[pts.size() - 2].T_base_tool.position_mm).norm(), 5.0, 1e-6);
+}
+
+TEST(CirclePlan, SmallBossLoopUsesItsOwnToolAndAngle) {
+  auto scene = make_scene();
+  scene.regions[2].chamfer_deg = 60.0;
+  const auto plan = plan_region(scene.inputs[2], PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  const auto e = ellipse_geometry(plan->conic);
+  ASSERT_TRUE(e);
+  EXPECT_NEAR(e->semi_major, 8.0, 1.0);
+  ASSERT_GT(plan->points.size(), 44U);
+  for (std::size_t i = 1; i + 1 < plan->points.size(); ++i) {
+    const auto& p = plan->points[i];
+    EXPECT_NEAR(p.T_base_tool.orientation.toRotationMatrix().col(2).z(), std::sin(deg_to_rad(60.0)), 1e-3);
+    EXPECT_DOUBLE_EQ(p.spindle_rpm, 9000.0);
+    EXPECT_DOUBLE_EQ(p.speed_mm_s, 15.0);
+    const Vec3 x = p.T_base_tool.position_mm;
+    EXPECT_NEAR(std::hypot(x.x() - 82.0, x.y() + 48.0), 7.05, 0.3);
+  }
+}
+
+TEST(StraightPlan, PassesAlongTheFittedLineWithTheToolOnTheFaceNormal) {
+  auto scene = make_scene();
+  const auto plan = plan_region(scene.inputs[3], PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  EXPECT_GT(std::abs(plan->line.direction.x()), 0.999);
+  EXPECT_EQ(plan->segments, 2);
+  ASSERT_EQ(plan->layer_levels_mm.size(), 2U);
+  EXPECT_NEAR(plan->layer_levels_mm.back(), 0.05, 1e-9);
+  double xmin = 1e9, xmax = -1e9;
+  for (const auto& p : plan->points) {
+    if (p.kind != MoveKind::grind) continue;
+    const Vec3 x = p.T_base_tool.position_mm;
+    EXPECT_NEAR(x.y(), -70.0, 0.3);
+    EXPECT_NEAR(p.T_base_tool.orientation.toRotationMatrix().col(2).z(), 1.0, 1e-6);
+    if (p.segment == 1) {
+      EXPECT_NEAR(x.z(), 35.05, 1e-3);
+    }
+    xmin = std::min(xmin, x.x()), xmax = std::max(xmax, x.x());
+  }
+  EXPECT_LT(xmin, -95.0 - 6.0);  // past both ends by the tool radius
+  EXPECT_GT(xmax, -5.0 + 6.0);
+}
+
+RegionPlan line_plan(const std::string& name, double x) {
+  RegionPlan p;
+  p.region = name;
+  p.segments = 1;
+  for (double dx : {0.0, 10.0}) {
+    TrajectoryPoint q;
+    q.T_base_tool.position_mm = Vec3(x + dx, 0.0, 40.0);
+    q.speed_mm_s = 10;
+    q.spindle_rpm = 5000;
+    p.points.push_back(q);
+  }
+  return p;
+}
+
+TEST(RegionOrder, ReducesTheAirMovesAgainstRecipeOrder) {
+  const std::vector<RegionPlan> plans = {line_plan("a", 0), line_plan("b", 300), line_plan("c", 100),
+                                         line_plan("d", 200)};
+  const std::vector<std::size_t> recipe_order = {0, 1, 2, 3};
+  const auto order = order_regions(plans);
+  ASSERT_EQ(order.size(), 4U);
+  const double before = air_move_length_mm(plans, recipe_order);
+  const double after = air_move_length_mm(plans, order);
+  EXPECT_NEAR(before, 290 + 210 + 90, 1e-9);
+  EXPECT_NEAR(after, 3 * 90.0, 1e-9);  // a, c, d, b
+  EXPECT_LT(after, before);
+  const Trajectory t = assemble("p", plans, order, PlannerSettings{});
+  ASSERT_EQ(t.segment_regions.size(), 4U);
+  EXPECT_EQ(t.segment_regions[0], "a");
+  EXPECT_EQ(t.segment_regions[1], "c");
+  EXPECT_EQ(t.points.front().kind, MoveKind::approach);
+  EXPECT_NEAR(t.points.front().T_base_tool.position_mm.z(), 40.0 + 100.0, 1e-9);  // safe height
+  EXPECT_EQ(t.points.back().kind, MoveKind::retract);
+}
+
+}  // namespace
+}  // namespace fettle::planning

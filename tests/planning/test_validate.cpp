@@ -1,0 +1,178 @@
+// Validation: every rule rejects with the region, the point index and the rule named; a plan
+// for a hostile recipe is refused; the output files round-trip.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <string>
+
+#include <unistd.h>
+
+#include "fettle/planning/io.hpp"
+#include "synthetic_part.hpp"
+
+namespace fettle::planning {
+namespace {
+
+using testing::make_scene;
+
+TEST(PlanPart, ThePumpBodyLikePartPlansAndValidates) {
+  auto scene = make_scene();
+  const auto traj = plan_part("pump-body", scene.inputs, PlannerSettings{});
+  ASSERT_TRUE(traj) << traj.error().message;
+  EXPECT_EQ(traj->part_id, "pump-body");
+  std::set<std::string> regions(traj->segment_regions.begin(), traj->segment_regions.end());
+  EXPECT_EQ(regions.size(), 4U);
+  EXPECT_TRUE(validate(*traj, scene.inputs, PlannerSettings{}));
+}
+
+void expect_rejected(const Status& st, const std::string& rule, const std::string& region, std::size_t point) {
+  ASSERT_FALSE(st) << "expected rule " << rule << " to reject";
+  EXPECT_EQ(st.error().code, "planning." + rule);
+  EXPECT_NE(st.error().message.find("region '" + region + "'"), std::string::npos) << st.error().message;
+  EXPECT_NE(st.error().message.find("point " + std::to_string(point) + ","), std::string::npos) << st.error().message;
+  EXPECT_NE(st.error().message.find("rule " + rule), std::string::npos) << st.error().message;
+}
+
+struct Planned {
+  testing::Scene scene = make_scene();
+  Trajectory traj;
+  std::size_t first_grind_of(const std::string& region) const {
+    for (std::size_t i = 0; i < traj.points.size(); ++i)
+      if (traj.points[i].kind == MoveKind::grind &&
+          traj.segment_regions[static_cast<std::size_t>(traj.points[i].segment)] == region)
+        return i;
+    return traj.points.size();
+  }
+  std::size_t last_grind_of(const std::string& region) const {
+    for (std::size_t i = traj.points.size(); i-- > 0;)
+      if (traj.points[i].kind == MoveKind::grind &&
+          traj.segment_regions[static_cast<std::size_t>(traj.points[i].segment)] == region)
+        return i;
+    return traj.points.size();
+  }
+};
+
+Planned planned() {
+  Planned p;
+  auto t = plan_part("pump-body", p.scene.inputs, PlannerSettings{});
+  if (t) p.traj = std::move(t.value());
+  return p;
+}
+
+TEST(Validate, WorkspaceRuleNamesRegionPointAndRule) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const std::size_t i = p.first_grind_of("riser");
+  p.traj.points[i].T_base_tool.position_mm.x() = 5000.0;
+  expect_rejected(validate(p.traj, p.scene.inputs, PlannerSettings{}), "workspace", "riser", i);
+}
+
+TEST(Validate, ToolAxisConeRule) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const std::size_t i = p.first_grind_of("side-parting-line");
+  p.traj.points[i].T_base_tool.orientation = Quat(Eigen::AngleAxisd(deg_to_rad(70.0), Vec3::UnitX()));
+  expect_rejected(validate(p.traj, p.scene.inputs, PlannerSettings{}), "tool_axis_cone", "side-parting-line", i);
+  // and the 45° chamfer ring is refused by a 30° cone at its first point
+  PlannerSettings narrow;
+  narrow.tool_axis_cone_rad = deg_to_rad(30.0);
+  auto q = planned();
+  ASSERT_FALSE(q.traj.points.empty());
+  const auto st = validate(q.traj, q.scene.inputs, narrow);
+  ASSERT_FALSE(st);
+  EXPECT_EQ(st.error().code, "planning.tool_axis_cone");
+}
+
+TEST(Validate, SpeedRuleCoversFeedAndSpindle) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const std::size_t i = p.first_grind_of("boss-circle");
+  auto fast = p.traj;
+  fast.points[i].speed_mm_s = 400.0;
+  expect_rejected(validate(fast, p.scene.inputs, PlannerSettings{}), "speed", "boss-circle", i);
+  auto spin = p.traj;
+  spin.points[i].spindle_rpm = 30000.0;
+  expect_rejected(validate(spin, p.scene.inputs, PlannerSettings{}), "speed", "boss-circle", i);
+  auto off = p.traj;
+  off.points[i].spindle_rpm = 0.0;  // grinding with the spindle off
+  expect_rejected(validate(off, p.scene.inputs, PlannerSettings{}), "speed", "boss-circle", i);
+}
+
+TEST(Validate, GougeRuleCatchesAToolInsideTheTemplate) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const std::size_t i = p.last_grind_of("riser") - 3;  // in the last layer, 0.05 mm above the face
+  p.traj.points[i].T_base_tool.position_mm.z() -= 1.0;  // 0.95 mm into the pad face
+  expect_rejected(validate(p.traj, p.scene.inputs, PlannerSettings{}), "gouge", "riser", i);
+}
+
+TEST(Validate, AHostileRecipeIsRefused) {
+  // regions with a feed beyond the cell's limit: no trajectory comes out
+  {
+    auto scene = make_scene();
+    scene.regions[3].feed_mm_s = 900.0;
+    const auto t = plan_part("pump-body", scene.inputs, PlannerSettings{});
+    ASSERT_FALSE(t);
+    EXPECT_EQ(t.error().code, "planning.speed");
+    EXPECT_NE(t.error().message.find("side-parting-line"), std::string::npos);
+  }
+  // a part placed (or a calibration) that puts the poses outside the workspace
+  {
+    Transform far = Transform::Identity();
+    far.translation() = Vec3(1500.0, 0.0, 0.0);
+    auto scene = make_scene(0.5, far);
+    const auto t = plan_part("pump-body", scene.inputs, PlannerSettings{});
+    ASSERT_FALSE(t);
+    EXPECT_EQ(t.error().code, "planning.workspace");
+  }
+  // a chamfer angle that points the tool outside the allowed cone
+  {
+    auto scene = make_scene();
+    scene.regions[0].chamfer_deg = 10.0;
+    const auto t = plan_part("pump-body", scene.inputs, PlannerSettings{});
+    ASSERT_FALSE(t);
+    EXPECT_TRUE(t.error().code == "planning.tool_axis_cone" || t.error().code == "planning.gouge") << t.error().message;
+  }
+}
+
+TEST(Files, TrajectoryJsonCsvAndPreviewRoundTrip) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const auto dir = std::filesystem::temp_directory_path() / ("fettle-planning-" + std::to_string(::getpid()));
+  std::vector<PreviewPoint> cloud;
+  for (const auto& in : p.scene.inputs)
+    for (const auto& x : in.excess_points_part) cloud.push_back({in.T_base_part * x, in.template_sdf(x)});
+  ASSERT_TRUE(write_outputs(dir, p.traj, cloud));
+  const Trajectory back = read_trajectory_json(dir / "trajectory.json");
+  EXPECT_EQ(back.part_id, p.traj.part_id);
+  EXPECT_EQ(back.segment_regions, p.traj.segment_regions);
+  ASSERT_EQ(back.points.size(), p.traj.points.size());
+  for (std::size_t i = 0; i < back.points.size(); ++i) {
+    const auto& a = back.points[i];
+    const auto& b = p.traj.points[i];
+    EXPECT_LT((a.T_base_tool.position_mm - b.T_base_tool.position_mm).norm(), 1e-9);
+    EXPECT_LT(a.T_base_tool.orientation.angularDistance(b.T_base_tool.orientation), 1e-9);
+    EXPECT_EQ(a.segment, b.segment);
+    EXPECT_EQ(a.kind, b.kind);
+    EXPECT_DOUBLE_EQ(a.speed_mm_s, b.speed_mm_s);
+    EXPECT_DOUBLE_EQ(a.spindle_rpm, b.spindle_rpm);
+  }
+  std::ifstream csv(dir / "trajectory.csv");
+  std::string header;
+  std::getline(csv, header);
+  EXPECT_EQ(header, "x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment,kind");
+  std::size_t rows = 0;
+  for (std::string line; std::getline(csv, line);) ++rows;
+  EXPECT_EQ(rows, p.traj.points.size());
+  std::ifstream png(dir / "preview.png", std::ios::binary);
+  char sig[8] = {};
+  png.read(sig, 8);
+  EXPECT_EQ(std::string(sig + 1, 3), "PNG");
+  EXPECT_GT(std::filesystem::file_size(dir / "preview.png"), 10000U);
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
+}  // namespace fettle::planning
