@@ -299,6 +299,38 @@ TEST_F(RobotLinkTest, RequestsOutOfStateFailLocally) {
   EXPECT_EQ(link_->state(), RobotState::ready);
 }
 
+TEST_F(RobotLinkTest, StopDuringUploadAbortsIt) {
+  connect_ready();
+  auto f = sim_->faults();
+  f.reply_delay_ms = 50;  // keep the upload in flight long enough to stop it
+  sim_->set_faults(f);
+  Outcome up, stop;
+  link_->upload(make_trajectory(30), up.handler());
+  ASSERT_TRUE(run_until([&] { return link_->state() == RobotState::uploading; }));
+  link_->stop(stop.handler());
+  EXPECT_EQ(up.code(), "robot.stopped");
+  ASSERT_TRUE(run_until([&] { return stop.done(); }));
+  EXPECT_TRUE(stop.ok()) << stop.code();
+  EXPECT_EQ(link_->state(), RobotState::ready);
+  EXPECT_EQ(sim_->stats().trajectories_received, 0);
+  f.reply_delay_ms = 0;
+  sim_->set_faults(f);
+  upload(make_trajectory(30));  // late ACKs of the aborted upload do not confuse the next one
+}
+
+TEST_F(RobotLinkTest, InjectedNakOnTrajFailsTheUpload) {
+  connect_ready();
+  auto f = sim_->faults();
+  f.nak_verb = "TRAJ";
+  f.nak_code = "FAULTED";
+  sim_->set_faults(f);
+  Outcome up;
+  link_->upload(make_trajectory(5), up.handler());
+  ASSERT_TRUE(run_until([&] { return up.done(); }));
+  EXPECT_EQ(up.code(), "robot.nak.faulted");
+  EXPECT_EQ(link_->state(), RobotState::ready);
+}
+
 // ---- robot-side validation → NAK ---------------------------------------------------
 
 TEST_F(RobotLinkTest, PointOutsideTheEnvelopeIsNaked) {
