@@ -2,11 +2,14 @@
 // The input is the synthetic part of tests/planning/synthetic_part.hpp: ring flash, riser,
 // boss circle flash and straight flash sampled at 0.5 mm (the vision voxel size), about
 // as many excess points as the simulator's pump body yields. Prints a table; exit 1 if the
-// median total exceeds the target.
+// median total exceeds the target. `bench_planning OUT_DIR` also writes trajectory.json,
+// trajectory.csv and preview.png of the plan into OUT_DIR.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <vector>
+
+#include "fettle/planning/io.hpp"
 
 #include "synthetic_part.hpp"
 
@@ -23,7 +26,7 @@ double median(std::vector<double> v) {
 
 }  // namespace
 
-int main() {
+int main(int argc, char** argv) {
   using namespace fettle::planning;
   auto scene = testing::make_scene(0.5);
   const PlannerSettings settings;
@@ -57,6 +60,15 @@ int main() {
       return 2;
     }
     poses = traj->points.size();
+    if (r == 0 && argc > 1) {
+      std::vector<PreviewPoint> cloud;
+      for (const auto& in : scene.inputs)
+        for (const auto& x : in.excess_points_part) cloud.push_back({in.T_base_part * x, in.template_sdf(x)});
+      if (auto st = write_outputs(argv[1], *traj, cloud); !st) {
+        std::fprintf(stderr, "%s\n", st.error().message.c_str());
+        return 2;
+      }
+    }
   }
   const double total = median(t);
   std::printf("%-20s %10zu %10zu %12.2f   (plan + order + validate, target <= 100 ms)\n", "all regions", total_points,

@@ -139,7 +139,7 @@ Status write_preview_png(const std::filesystem::path& path, const std::vector<Pr
     for (std::size_t i = 1; i < trajectory.points.size(); ++i) {
       const auto& a = trajectory.points[i - 1];
       const auto& b = trajectory.points[i];
-      const bool grind = b.kind == MoveKind::grind;
+      const bool grind = a.kind == MoveKind::grind && b.kind == MoveKind::grind;
       cv::line(img, to_px(a.T_base_tool.position_mm, view), to_px(b.T_base_tool.position_mm, view),
                grind ? cv::Scalar(255, 255, 255) : cv::Scalar(0, 200, 255), 1, cv::LINE_AA);
     }

@@ -428,8 +428,11 @@ double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_too
 }
 
 Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
+  // flange z points out of the flange toward the tip (ISO 9787); the tool z points back toward
+  // the spindle, so the tool frame is the TCP frame turned half a turn about x
   Transform T_flange_tool = Transform::Identity();
   T_flange_tool.translation() = Vec3(tool.tcp_mm[0], tool.tcp_mm[1], tool.tcp_mm[2]);
+  T_flange_tool.linear() = Eigen::AngleAxisd(std::numbers::pi, Vec3::UnitX()).toRotationMatrix();
   return T_base_tool * T_flange_tool.inverse();
 }
 

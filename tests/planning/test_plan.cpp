@@ -179,5 +179,55 @@ TEST(RegionOrder, ReducesTheAirMovesAgainstRecipeOrder) {
   EXPECT_EQ(t.points.back().kind, MoveKind::retract);
 }
 
+TEST(Frames, PosesFollowThePartPlacementIntoTheBaseFrame) {
+  Transform T_base_part = Transform::Identity();
+  T_base_part.linear() = Eigen::AngleAxisd(deg_to_rad(3.0), Vec3::UnitZ()).toRotationMatrix();
+  T_base_part.translation() = Vec3(300.0, -120.0, 20.0);
+  auto nominal = make_scene();
+  auto placed = make_scene(0.5, T_base_part);
+  const auto a = plan_part("p", nominal.inputs, PlannerSettings{});
+  const auto b = plan_part("p", placed.inputs, PlannerSettings{});
+  ASSERT_TRUE(a) << a.error().message;
+  ASSERT_TRUE(b) << b.error().message;
+  ASSERT_EQ(a->points.size(), b->points.size());
+  EXPECT_EQ(a->segment_regions, b->segment_regions);
+  for (std::size_t i = 0; i < a->points.size(); ++i) {
+    const Transform expected = T_base_part * a->points[i].T_base_tool.to_transform();
+    const Transform got = b->points[i].T_base_tool.to_transform();
+    EXPECT_LT((expected.translation() - got.translation()).norm(), 1e-6) << "point " << i;
+    EXPECT_LT(rotation_angle_rad(expected.inverse() * got), 1e-9) << "point " << i;
+  }
+}
+
+TEST(Frames, FlangeSitsTcpLengthUpTheToolAxis) {
+  config::Tool tool;
+  tool.tcp_mm = {0.0, 0.0, 180.0};
+  Transform T_base_tool = Transform::Identity();
+  T_base_tool.linear() = Eigen::AngleAxisd(deg_to_rad(45.0), Vec3::UnitY()).toRotationMatrix();
+  T_base_tool.translation() = Vec3(10, 20, 30);
+  const Transform T_base_flange = flange_pose(T_base_tool, tool);
+  const Vec3 axis = T_base_tool.linear().col(2);
+  EXPECT_LT((T_base_flange.translation() - (Vec3(10, 20, 30) + 180.0 * axis)).norm(), 1e-9);
+  EXPECT_LT((T_base_flange.linear().col(2) + axis).norm(), 1e-12);  // flange z points down the tool
+}
+
+TEST(Settings, ComeFromTheCellSafetySection) {
+  config::SafetySection safety;
+  safety.workspace_min_mm = {-500, -400, -10};
+  safety.workspace_max_mm = {500, 400, 700};
+  safety.tool_axis_cone_deg = 30.0;
+  safety.max_speed_mm_s = 80.0;
+  safety.max_spindle_rpm = 10000.0;
+  safety.safe_height_mm = 60.0;
+  const auto s = PlannerSettings::from(safety);
+  EXPECT_EQ(s.workspace_min_mm, Vec3(-500, -400, -10));
+  EXPECT_EQ(s.workspace_max_mm, Vec3(500, 400, 700));
+  EXPECT_NEAR(s.tool_axis_cone_rad, deg_to_rad(30.0), 1e-12);
+  EXPECT_DOUBLE_EQ(s.max_speed_mm_s, 80.0);
+  EXPECT_DOUBLE_EQ(s.air_speed_mm_s, 80.0);  // clamped to the limit
+  EXPECT_DOUBLE_EQ(s.max_spindle_rpm, 10000.0);
+  EXPECT_DOUBLE_EQ(s.safe_height_mm, 60.0);
+}
+
 }  // namespace
 }  // namespace fettle::planning

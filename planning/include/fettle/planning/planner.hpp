@@ -109,7 +109,9 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
 Result<Trajectory> plan_part(const std::string& part_id, const std::vector<RegionInput>& inputs,
                              const PlannerSettings& settings);
 
-/// The flange pose for a TCP pose: T_base_flange = T_base_tool · T_tool_flange.
+/// The flange pose for a TCP pose: T_base_flange = T_base_tool · T_tool_flange, where
+/// T_flange_tool = translation(tool.tcp_mm) · rot_x(180°) (flange z toward the tip, tool z back
+/// toward the spindle): the flange sits tcp_mm[2] along the tool z axis from the tip.
 Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
 
 /// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool.
