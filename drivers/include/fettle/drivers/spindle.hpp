@@ -1,0 +1,116 @@
+#pragma once
+// The grinding spindle: a CANopen master for one CiA 402 drive in velocity mode.
+//
+// Asynchronous on the io_context it is given (the daemon's one thread): every call returns at
+// once and completes through its handler with a Status; nothing blocks. Every step has a
+// timeout. A drive in fault (EMCY, fault statusword, heartbeat lost, reboot) is latched and
+// reported as an event; it is never re-enabled until fault_reset() is called explicitly.
+// See docs/spindle-canopen.md for the objects used and the start-up sequence.
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include <boost/asio/io_context.hpp>
+
+#include "fettle/config/spindle.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/drivers/canopen.hpp"
+#include "fettle/drivers/canopen_transport.hpp"
+
+namespace fettle::drivers {
+
+struct SpindleOptions {
+  std::uint8_t node_id = 1;
+  std::uint8_t master_node_id = 127;  ///< our heartbeat's id; the drive consumes it (0x1016)
+  canopen::OperationMode mode = canopen::OperationMode::profile_velocity;
+  int heartbeat_producer_ms = 100;  ///< written to the drive's 0x1017; also our own heartbeat period
+  int heartbeat_timeout_ms = 300;   ///< drive heartbeat missing longer → fault; drive's 0x1016 time for ours
+  int sdo_timeout_ms = 200;
+  int step_timeout_ms = 1000;        ///< each state-machine transition, boot-up, NMT start
+  int spin_up_timeout_ms = 10000;    ///< reaching (or leaving) speed
+  int feedback_period_ms = 20;       ///< TPDO1 event timer (0x1800:05)
+  double at_speed_tolerance_rpm = 100.0;
+  double max_rpm = 12000.0;
+
+  static SpindleOptions from_config(const config::SpindleSection& s);
+};
+
+/// What the master knows about the drive (updated from TPDO1, heartbeats, EMCY, SDO reads).
+struct SpindleStatus {
+  bool configured = false;                 ///< start() finished its SDO configuration
+  bool heartbeat_ok = false;               ///< the drive's heartbeat arrives in time
+  canopen::NmtState nmt = canopen::NmtState::boot_up;
+  std::uint16_t statusword = 0;
+  canopen::DriveState state = canopen::DriveState::unknown;
+  double velocity_rpm = 0.0;               ///< 0x606C (drive velocity units taken as rpm)
+  double current_permille = 0.0;           ///< 0x6078, thousandths of the rated current
+  double current_a = 0.0;                  ///< from 0x6078 and the rated current 0x6075
+  double rated_current_a = 0.0;            ///< 0x6075
+  double target_rpm = 0.0;
+  std::uint64_t feedback_frames = 0;       ///< TPDO1 frames received
+  std::optional<Error> fault;              ///< latched fault: cleared only by fault_reset()
+  std::optional<canopen::Emergency> last_emcy;
+};
+
+struct SpindleEvent {
+  enum class Kind {
+    fault,               ///< a fault was latched (EMCY, statusword, heartbeat lost, reboot, link lost)
+    emergency,           ///< any EMCY frame (including 0x0000 "error reset")
+    heartbeat_lost,
+    heartbeat_restored,
+    link_error,          ///< transport problem (error frame, socket error)
+    state_changed,       ///< CiA 402 state changed
+  };
+  Kind kind = Kind::fault;
+  std::string message;
+  std::optional<canopen::Emergency> emcy;
+  canopen::DriveState state = canopen::DriveState::unknown;
+};
+std::string to_string(SpindleEvent::Kind k);
+
+class SpindleDrive {
+ public:
+  using Done = std::function<void(Status)>;
+  using ValueDone = std::function<void(Result<std::uint32_t>)>;
+
+  SpindleDrive(boost::asio::io_context& io, std::shared_ptr<canopen::CanTransport> transport,
+               SpindleOptions options);
+  ~SpindleDrive();
+  SpindleDrive(const SpindleDrive&) = delete;
+  SpindleDrive& operator=(const SpindleDrive&) = delete;
+
+  /// NMT reset communication, wait for boot-up, configure (0x1017, 0x1016, 0x6075, TPDO1, 0x6060),
+  /// NMT start. Fails with "spindle.fault" if the drive is in fault afterwards.
+  void start(Done done);
+  /// Enables the drive (shutdown → switch on → enable operation) and sets the target; completes
+  /// when |actual − rpm| ≤ tolerance. Refused while a fault is latched.
+  void spin_up(double rpm, Done done);
+  /// Target 0, waits for standstill, then shutdown (ready to switch on). Cancels a running spin_up.
+  void stop(Done done);
+  /// Fault reset (controlword bit 7), waits for "switch on disabled", clears the latched fault.
+  void fault_reset(Done done);
+
+  /// Events (faults, EMCY, heartbeat, link) as they happen, on the io_context thread.
+  void on_event(std::function<void(const SpindleEvent&)> handler);
+  [[nodiscard]] const SpindleStatus& status() const;
+
+  // Lower-level services, for commissioning and tests.
+  void sdo_read(std::uint16_t index, std::uint8_t sub, ValueDone done);
+  void sdo_write(std::uint16_t index, std::uint8_t sub, std::uint32_t value, std::uint8_t size, Done done);
+  void nmt(canopen::NmtCommand command);
+
+  struct Impl;
+
+ private:
+  std::shared_ptr<Impl> impl_;
+};
+
+/// The transport the [spindle] section names: "socketcan" (CAN_RAW on `interface`, filtered to
+/// the drive's COB-IDs) or "socketcand" (address:port, bus `interface`). "sim" needs the
+/// simulated drive in the same process and throws fettle::UserError here.
+std::shared_ptr<canopen::CanTransport> make_spindle_transport(boost::asio::io_context& io,
+                                                              const config::SpindleSection& s);
+
+}  // namespace fettle::drivers

@@ -1,0 +1,207 @@
+// The master and the simulated drive over socketcand's rawmode protocol on loopback TCP:
+// in one process (SocketcandServer on an in-process bus) and across processes
+// (`fettle-sim spindle --listen 127.0.0.1:0`).
+#include <poll.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include <boost/asio/connect.hpp>
+#include <boost/asio/ip/tcp.hpp>
+#include <boost/asio/read_until.hpp>
+#include <boost/asio/streambuf.hpp>
+#include <boost/asio/write.hpp>
+
+#include "fettle/drivers/spindle.hpp"
+#include "fettle/sim/spindle.hpp"
+#include "spindle_test_util.hpp"
+
+using namespace fettle::canopen;
+using fettle::Status;
+using fettle::drivers::SpindleDrive;
+using fettle::drivers::SpindleEvent;
+using fettle::drivers::SpindleOptions;
+using fettle::test::await;
+using fettle::test::run_until;
+using namespace std::chrono_literals;
+
+namespace {
+
+/// A child process with pipes on stdin and stdout.
+class Child {
+ public:
+  explicit Child(std::vector<std::string> argv) {
+    int in[2];
+    int out[2];
+    if (::pipe(in) != 0 || ::pipe(out) != 0) throw std::runtime_error("pipe failed");
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      ::dup2(in[0], STDIN_FILENO);
+      ::dup2(out[1], STDOUT_FILENO);
+      ::close(in[1]);
+      ::close(out[0]);
+      std::vector<char*> args;
+      for (auto& a : argv) args.push_back(a.data());
+      args.push_back(nullptr);
+      ::execv(args[0], args.data());
+      ::_exit(127);
+    }
+    ::close(in[0]);
+    ::close(out[1]);
+    stdin_ = in[1];
+    stdout_ = out[0];
+  }
+  ~Child() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGTERM);
+      int status = 0;
+      ::waitpid(pid_, &status, 0);
+    }
+    ::close(stdin_);
+    ::close(stdout_);
+  }
+  Child(const Child&) = delete;
+  Child& operator=(const Child&) = delete;
+
+  /// The next stdout line, or "" after `timeout`.
+  std::string read_line(std::chrono::milliseconds timeout) {
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    while (true) {
+      if (auto nl = buffer_.find('\n'); nl != std::string::npos) {
+        auto line = buffer_.substr(0, nl);
+        buffer_.erase(0, nl + 1);
+        return line;
+      }
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(end - std::chrono::steady_clock::now());
+      if (left.count() <= 0) return "";
+      pollfd p{stdout_, POLLIN, 0};
+      if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) return "";
+      char chunk[256];
+      const auto n = ::read(stdout_, chunk, sizeof chunk);
+      if (n <= 0) return "";
+      buffer_.append(chunk, static_cast<std::size_t>(n));
+    }
+  }
+  void write_line(const std::string& line) {
+    const std::string s = line + "\n";
+    ASSERT_EQ(::write(stdin_, s.data(), s.size()), static_cast<ssize_t>(s.size()));
+  }
+
+ private:
+  pid_t pid_ = -1;
+  int stdin_ = -1;
+  int stdout_ = -1;
+  std::string buffer_;
+};
+
+class SpindleSocketcandTest : public ::testing::Test {
+ protected:
+  boost::asio::io_context io;
+  std::vector<SpindleEvent> events;
+  bool saw(SpindleEvent::Kind k) const {
+    return std::any_of(events.begin(), events.end(), [k](const auto& e) { return e.kind == k; });
+  }
+};
+
+}  // namespace
+
+TEST_F(SpindleSocketcandTest, ServerSpeaksTheHandshakeAndRejectsAnUnknownBus) {
+  auto bus = InProcessBus::create();
+  fettle::sim::SocketcandServer server(io, bus, "127.0.0.1", 0, "can0");
+  ASSERT_GT(server.port(), 0);
+  std::atomic<bool> finished{false};
+  std::thread client([port = server.port(), &finished] {
+    boost::asio::io_context cio;
+    boost::asio::ip::tcp::socket s(cio);
+    s.connect({boost::asio::ip::make_address("127.0.0.1"), static_cast<unsigned short>(port)});
+    boost::asio::streambuf buf;
+    auto next = [&] {
+      boost::asio::read_until(s, buf, '>');
+      std::istream is(&buf);
+      std::string el;
+      std::getline(is, el, '>');
+      return el + ">";
+    };
+    EXPECT_EQ(next(), "< hi >");
+    boost::asio::write(s, boost::asio::buffer(std::string("< open can9 >")));
+    EXPECT_NE(next().find("< error"), std::string::npos);
+    boost::asio::write(s, boost::asio::buffer(std::string("< open can0 >")));
+    EXPECT_EQ(next(), "< ok >");
+    boost::asio::write(s, boost::asio::buffer(std::string("< rawmode >")));
+    EXPECT_EQ(next(), "< ok >");
+    finished = true;
+  });
+  // Serve the handshake while the client thread runs, then see the session end when it leaves.
+  const bool served = run_until(io, [&] { return finished.load(); });
+  client.join();
+  ASSERT_TRUE(served);
+  EXPECT_TRUE(run_until(io, [&] { return server.clients() == 0; }));
+}
+
+TEST_F(SpindleSocketcandTest, MasterSpinsUpTheDriveThroughAnInProcessSocketcandServer) {
+  auto bus = InProcessBus::create();
+  fettle::sim::SocketcandServer server(io, bus, "127.0.0.1", 0, "can0");
+  fettle::sim::SimulatedSpindleDrive drive(io, bus->attach(io, "drive"));
+  drive.power_on();
+  SpindleDrive master(io, open_socketcand(io, "127.0.0.1", server.port(), "can0"), SpindleOptions{});
+  master.on_event([this](const SpindleEvent& e) { events.push_back(e); });
+  Status s = await(io, [&](auto h) { master.start(h); });
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  s = await(io, [&](auto h) { master.spin_up(4000, h); });
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_NEAR(drive.velocity_rpm(), 4000.0, 100.0);
+
+  // The server goes away: the link loss is a latched fault, reported as an event.
+  server.disconnect_all();
+  ASSERT_TRUE(run_until(io, [&] { return master.status().fault.has_value(); }));
+  EXPECT_EQ(master.status().fault->code, "spindle.link_lost");
+  EXPECT_TRUE(saw(SpindleEvent::Kind::link_error));
+}
+
+TEST_F(SpindleSocketcandTest, ConnectionRefusedIsALinkErrorThatFailsStart) {
+  // Find a free port, then close it so nothing listens there.
+  int port = 0;
+  {
+    boost::asio::ip::tcp::acceptor a(io, {boost::asio::ip::make_address("127.0.0.1"), 0});
+    port = a.local_endpoint().port();
+  }
+  SpindleDrive master(io, open_socketcand(io, "127.0.0.1", port, "can0"), SpindleOptions{});
+  const Status s = await(io, [&](auto h) { master.start(h); });
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, "spindle.link_lost");
+  EXPECT_NE(s.error().message.find("connect"), std::string::npos) << s.error().message;
+}
+
+TEST_F(SpindleSocketcandTest, MasterDrivesFettleSimSpindleInAnotherProcess) {
+  const std::string sim = std::string(FETTLE_BIN_DIR) + "/fettle-sim";
+  if (::access(sim.c_str(), X_OK) != 0) GTEST_SKIP() << sim << " is not built";
+  Child child({sim, "spindle", "--listen", "127.0.0.1:0"});
+  const std::string line = child.read_line(5000ms);
+  ASSERT_EQ(line.rfind("listening 127.0.0.1:", 0), 0U) << "first line: '" << line << "'";
+  const int port = std::stoi(line.substr(line.rfind(':') + 1));
+  ASSERT_GT(port, 0);
+
+  SpindleDrive master(io, open_socketcand(io, "127.0.0.1", port, "can0"), SpindleOptions{});
+  master.on_event([this](const SpindleEvent& e) { events.push_back(e); });
+  Status s = await(io, [&](auto h) { master.start(h); });
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  s = await(io, [&](auto h) { master.spin_up(5000, h); });
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_NEAR(master.status().velocity_rpm, 5000.0, 100.0);
+
+  child.write_line("removal 60");
+  ASSERT_TRUE(run_until(io, [&] { return master.status().current_a > 3.0; })) << master.status().current_a;
+
+  child.write_line("fault overtemperature");
+  ASSERT_TRUE(run_until(io, [&] { return master.status().fault.has_value(); }));
+  EXPECT_NE(master.status().fault->message.find("0x4310"), std::string::npos) << master.status().fault->message;
+  s = await(io, [&](auto h) { master.fault_reset(h); });
+  EXPECT_TRUE(s.ok()) << s.error().message;
+  s = await(io, [&](auto h) { master.stop(h); });
+  EXPECT_TRUE(s.ok()) << s.error().message;
+}
