@@ -62,6 +62,22 @@ class EventLog {
     return found;
   }
 
+  /// The first event of type T ever received (whatever the read position), waiting up to `timeout`.
+  template <class T>
+  std::optional<T> first(std::chrono::milliseconds timeout) {
+    std::unique_lock lock(mutex_);
+    std::optional<T> found;
+    cv_.wait_for(lock, timeout, [&] {
+      for (const auto& e : events_)
+        if (const auto* t = std::get_if<T>(&e)) {
+          found = *t;
+          return true;
+        }
+      return false;
+    });
+    return found;
+  }
+
   /// Every event so far of type T.
   template <class T>
   std::vector<T> all() {

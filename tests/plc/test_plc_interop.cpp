@@ -164,15 +164,15 @@ TEST(PlcInterop, LinkTalksToAPymodbusPlcAndRecoversWhenItRestarts) {
   plc::Link link(events.executor(), options, events.handler());
   link.start();
   ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
-  const auto slide = events.wait_for<plc::SlideState>(kWait);
-  ASSERT_TRUE(slide);
-  EXPECT_EQ(slide->status, plc::SlideStatus::at_home);
 
   // Heartbeat each way, cycle request and its acknowledge.
   ASSERT_TRUE(py->wait_line(std::regex("^fettle heartbeat running$"), kWait)) << py->output();
   const auto req = events.wait_for<plc::CycleRequest>(kWait);
   ASSERT_TRUE(req) << events.dump();
   EXPECT_EQ(req->recipe_id, 42);
+  const auto slide = events.first<plc::SlideState>(kWait);
+  ASSERT_TRUE(slide) << events.dump();
+  EXPECT_EQ(slide->status, plc::SlideStatus::at_home);
   link.accept_cycle();
   ASSERT_TRUE(py->wait_line(std::regex("^accepted 42$"), kWait)) << py->output();
 
