@@ -110,7 +110,7 @@ void read_calibration_file(TableReader& root, CalibrationFile& c) {
     read_hand_eye(*t, h);
     c.hand_eye = h;
   }
-  if (c.hand_eye && !c.T_base_camera)
+  if (c.hand_eye && !c.T_base_camera && !root.has("T_base_camera"))
     root.error("hand_eye", "residuals are given but [T_base_camera] is missing");
 }
 

@@ -1,0 +1,149 @@
+#include "synthetic.hpp"
+
+#include <cmath>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
+
+namespace fettle::test {
+
+config::CameraIntrinsics test_camera(bool distorted) {
+  config::CameraIntrinsics k;
+  k.width_px = 1032;
+  k.height_px = 772;
+  k.fx_px = 1200.0;
+  k.fy_px = 1200.0;
+  k.cx_px = 520.0;
+  k.cy_px = 380.0;
+  k.distortion = distorted ? std::vector<double>{-0.12, 0.08, 0.0005, -0.0003, 0.0} : std::vector<double>(5, 0.0);
+  return k;
+}
+
+cv::Mat render_board(const vision::calibration::BoardSpec& board, const config::CameraIntrinsics& k,
+                     const Transform& T, double blur_sigma_px, double noise_grey, unsigned seed) {
+  // Texture: (cols + 1) x (rows + 1) squares plus a one-square white margin, S texels per square.
+  constexpr int S = 60;
+  const int sq_x = board.cols + 3, sq_y = board.rows + 3;
+  cv::Mat tex(sq_y * S, sq_x * S, CV_32FC1, cv::Scalar(230.0));
+  for (int j = 1; j < sq_y - 1; ++j)
+    for (int i = 1; i < sq_x - 1; ++i)
+      if ((i + j) % 2 == 0) tex(cv::Rect(i * S, j * S, S, S)).setTo(cv::Scalar(25.0));
+  // Every image pixel: undistorted normalized ray -> board plane -> texture coordinate.
+  std::vector<cv::Point2f> px;
+  px.reserve(static_cast<std::size_t>(k.width_px) * static_cast<std::size_t>(k.height_px));
+  for (int v = 0; v < k.height_px; ++v)
+    for (int u = 0; u < k.width_px; ++u) px.emplace_back(static_cast<float>(u), static_cast<float>(v));
+  const cv::Mat K = (cv::Mat_<double>(3, 3) << k.fx_px, 0, k.cx_px, 0, k.fy_px, k.cy_px, 0, 0, 1);
+  std::vector<cv::Point2f> norm;
+  cv::undistortPoints(px, norm, K, cv::Mat(k.distortion, true), cv::noArray(), cv::noArray(),
+                      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 30, 1e-12));
+  Eigen::Matrix3d G;
+  G.col(0) = T.linear().col(0);
+  G.col(1) = T.linear().col(1);
+  G.col(2) = T.translation();
+  const Eigen::Matrix3d Gi = G.inverse();
+  cv::Mat mapx(k.height_px, k.width_px, CV_32FC1), mapy(k.height_px, k.width_px, CV_32FC1);
+  for (int v = 0; v < k.height_px; ++v)
+    for (int u = 0; u < k.width_px; ++u) {
+      const auto& n = norm[static_cast<std::size_t>(v) * static_cast<std::size_t>(k.width_px) +
+                           static_cast<std::size_t>(u)];
+      const Eigen::Vector3d b = Gi * Eigen::Vector3d(n.x, n.y, 1.0);
+      float tx = -1000.f, ty = -1000.f;
+      if (b.z() > 0) {  // in front of the camera
+        tx = static_cast<float>((b.x() / b.z() / board.square_mm + 2.0) * S - 0.5);
+        ty = static_cast<float>((b.y() / b.z() / board.square_mm + 2.0) * S - 0.5);
+      }
+      mapx.at<float>(v, u) = tx;
+      mapy.at<float>(v, u) = ty;
+    }
+  cv::Mat img;
+  cv::remap(tex, img, mapx, mapy, cv::INTER_AREA, cv::BORDER_CONSTANT, cv::Scalar(120.0));
+  cv::GaussianBlur(img, img, cv::Size(0, 0), blur_sigma_px > 0 ? blur_sigma_px : 0.5);
+  cv::Mat n(img.size(), CV_32FC1);
+  cv::RNG rng(seed);
+  rng.fill(n, cv::RNG::NORMAL, 0.0, noise_grey);
+  img += n;
+  cv::Mat out;
+  img.convertTo(out, CV_8UC1);
+  return out;
+}
+
+vision::calibration::GrayImage to_gray_image(const cv::Mat& m, const std::string& name) {
+  vision::calibration::GrayImage g;
+  g.name = name;
+  g.width_px = m.cols;
+  g.height_px = m.rows;
+  g.pixels.assign(m.data, m.data + m.total());
+  return g;
+}
+
+Transform board_pose_facing_camera(const vision::calibration::BoardSpec& board, double distance_mm, double dx_mm,
+                                   double dy_mm, double tilt_x, double tilt_y, double spin_z) {
+  // Rotate about the board centre, then place the centre at (dx, dy, distance).
+  const Vec3 centre(0.5 * (board.cols - 1) * board.square_mm, 0.5 * (board.rows - 1) * board.square_mm, 0.0);
+  const Eigen::Matrix3d R = (Eigen::AngleAxisd(tilt_x, Vec3::UnitX()) * Eigen::AngleAxisd(tilt_y, Vec3::UnitY()) *
+                             Eigen::AngleAxisd(spin_z, Vec3::UnitZ()))
+                                .toRotationMatrix();
+  Transform T = Transform::Identity();
+  T.linear() = R;
+  T.translation() = Vec3(dx_mm, dy_mm, distance_mm) - R * centre;
+  return T;
+}
+
+Transform noise(std::mt19937_64& rng, double sigma_mm, double sigma_deg) {
+  std::normal_distribution<double> nt(0.0, sigma_mm), nr(0.0, deg_to_rad(sigma_deg));
+  const Vec3 w(nr(rng), nr(rng), nr(rng));
+  Transform T = Transform::Identity();
+  if (w.norm() > 0) T.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
+  T.translation() = Vec3(nt(rng), nt(rng), nt(rng));
+  return T;
+}
+
+HandEyeTruth hand_eye_truth() {
+  HandEyeTruth t;
+  t.T_base_camera = Transform::Identity();
+  t.T_base_camera.linear() = (Eigen::AngleAxisd(deg_to_rad(180.0), Vec3::UnitX()) *
+                              Eigen::AngleAxisd(deg_to_rad(1.5), Vec3::UnitY()) *
+                              Eigen::AngleAxisd(deg_to_rad(-2.0), Vec3::UnitZ()))
+                                 .toRotationMatrix();
+  t.T_base_camera.translation() = Vec3(12.0, -7.0, 600.0);
+  t.T_flange_board = Transform::Identity();
+  t.T_flange_board.linear() =
+      (Eigen::AngleAxisd(deg_to_rad(3.0), Vec3::UnitZ()) * Eigen::AngleAxisd(deg_to_rad(-1.0), Vec3::UnitX()))
+          .toRotationMatrix();
+  t.T_flange_board.translation() = Vec3(-80.0, -50.0, 80.0);
+  return t;
+}
+
+std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTruth& truth, int n, double sigma_mm,
+                                                                 double sigma_deg, std::uint64_t seed,
+                                                                 bool single_axis) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const vision::calibration::BoardSpec board{9, 6, 20.0};
+  std::vector<vision::calibration::HandEyeSample> out;
+  for (int i = 0; i < n; ++i) {
+    const double tilt_x = single_axis ? 0.0 : deg_to_rad(30.0 * u(rng));
+    const double tilt_y = single_axis ? 0.0 : deg_to_rad(30.0 * u(rng));
+    const double spin = deg_to_rad(60.0 * u(rng));
+    const Transform B =
+        board_pose_facing_camera(board, 480.0 + 60.0 * u(rng), 120.0 * u(rng), 90.0 * u(rng), tilt_x, tilt_y, spin);
+    const Transform A = truth.T_base_camera * B * truth.T_flange_board.inverse();
+    vision::calibration::HandEyeSample s;
+    s.name = "pose" + std::to_string(i + 1);
+    s.T_base_flange = A * noise(rng, sigma_mm, sigma_deg);
+    s.T_camera_board = B * noise(rng, sigma_mm, sigma_deg);
+    out.push_back(s);
+  }
+  return out;
+}
+
+double rotation_error_deg(const Transform& a, const Transform& b) {
+  return rad_to_deg(rotation_angle_rad(a.inverse() * b));
+}
+
+double translation_error_mm(const Transform& a, const Transform& b) {
+  return (a.translation() - b.translation()).norm();
+}
+
+}  // namespace fettle::test
