@@ -1,6 +1,7 @@
 // fettle-sim camera --address 127.0.0.1 [--part part.toml] [--seed N] [--slide-mm X]:
 // the simulated GigE Vision 3D camera (Aravis' fake GigE Vision camera with Fettle's GenICam
-// description), serving range images of the scene for the current slide position.
+// description), serving range images of the casting (--part, the simulator's scanner) or of
+// a synthetic plane and sphere (no --part) for the current slide position.
 //
 // While it runs, lines on stdin change it: `slide MM`, `drop N` (the next N frames are never
 // delivered), `loss N RATIO` (the next N frames lose packets), `stall MS`, `revoke` (control
@@ -40,6 +41,7 @@ struct Args {
   std::string resolution = "2064x1544";
   int packet_size_bytes = 8192;
   double run_for_s = 0.0;
+  bool ideal = false;
 };
 
 fettle::sim::RangeImageModel model_for(const std::string& resolution) {
@@ -95,15 +97,13 @@ int run_camera(const Args& a) {
   const auto model = model_for(a.resolution);
   fettle::sim::RangeImageSource source;
   if (!a.part.empty()) {
-    const auto recipe = fettle::config::load_part(a.part);  // validates the file (UserError on problems)
-    (void)recipe;
-    // The simulator's casting renderer (sim/include/fettle/sim/, issue 3) is not available to
-    // this command yet: serve the synthetic scene and say so.
-    log->warn("the casting renderer is not available yet: serving the synthetic plane-and-sphere scene instead of "
-              "the part in {}",
-              a.part.string());
+    const auto recipe = fettle::config::load_part(a.part);
+    log->info("building casting {} of {} for the simulated camera", a.seed, a.part.string());
+    source = fettle::sim::scanner_range_source(recipe, a.seed, model, !a.ideal);
+  } else {
+    log->info("no --part given: serving the synthetic plane-and-sphere scene");
+    source = fettle::sim::synthetic_range_source(model, fettle::sim::SyntheticScene{});
   }
-  source = fettle::sim::synthetic_range_source(model, fettle::sim::SyntheticScene{});
   fettle::sim::SimulatedCameraOptions o;
   o.address = a.address;
   o.serial = a.serial;
@@ -111,7 +111,7 @@ int run_camera(const Args& a) {
   o.packet_loss = a.packet_loss;
   o.packet_size_bytes = static_cast<std::uint32_t>(a.packet_size_bytes);
   fettle::sim::SimulatedCamera camera(o, source);
-  camera.set_slide_position_mm(a.slide_mm);
+  if (a.slide_mm != 0.0) camera.set_slide_position_mm(a.slide_mm);
   std::signal(SIGINT, on_camera_signal);
   std::signal(SIGTERM, on_camera_signal);
   std::cout << "ready: GigE Vision camera " << a.serial << " on " << a.address << " (UDP 3956)" << std::endl;
@@ -161,6 +161,7 @@ FETTLE_COMMAND("camera", [](CLI::App& app, const fettle::cli::Common&) {
   cmd->add_option("--packet-size", a->packet_size_bytes, "Initial GevSCPSPacketSize, bytes")
       ->check(CLI::Range(576, 16384))
       ->capture_default_str();
+  cmd->add_flag("--ideal", a->ideal, "No measurement noise (with --part)");
   cmd->add_option("--run-for-s", a->run_for_s, "Stop after this many seconds (0 = until SIGINT/SIGTERM or `quit`)");
   return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{{cmd, [a] { return run_camera(*a); }}};
 });

@@ -111,9 +111,29 @@ struct SimulatedCamera::Impl {
   std::atomic<int> stall_ms{0};
   std::atomic<std::uint64_t> sent{0};
 
-  // Render cache (camera thread only).
-  std::vector<std::uint16_t> range;
-  double rendered_slide = std::numeric_limits<double>::quiet_NaN();
+  // The range image for the current slide position, rendered by whoever moves the slide
+  // (never in the camera thread, which must keep answering the control channel).
+  std::mutex render_mutex;  // one render at a time
+  std::mutex image_mutex;   // guards `image`
+  std::shared_ptr<const std::vector<std::uint16_t>> image;
+
+  void render(double slide) {
+    std::lock_guard render_lock(render_mutex);
+    const auto t0 = std::chrono::steady_clock::now();
+    auto next = std::make_shared<std::vector<std::uint16_t>>();
+    source.render(slide, *next);
+    const auto& m = source.model;
+    if (next->size() != std::size_t{m.width} * m.height)
+      throw DeviceError("simulated camera: the renderer returned " + std::to_string(next->size()) + " pixels, not " +
+                        std::to_string(m.width) + "x" + std::to_string(m.height));
+    {
+      std::lock_guard lock(image_mutex);
+      image = std::move(next);
+      slide_mm = slide;
+    }
+    logger()->info("simulated camera: range image for slide {} mm rendered in {:.0f} ms", slide,
+                   std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  }
 
   Impl(SimulatedCameraOptions o, RangeImageSource s) : options(std::move(o)), source(std::move(s)) {
     if (!source.render) throw UserError("simulated camera: no range image renderer given");
@@ -153,6 +173,7 @@ struct SimulatedCamera::Impl {
     write_double_be(fake, kPpu, m.cx_px);
     write_double_be(fake, kPpv, m.cy_px);
     arv_fake_camera_set_trigger_frequency(fake, 200.0);  // poll the software trigger every 5 ms
+    render(0.0);
     arv_fake_camera_set_fill_pattern(fake, &Impl::fill_pattern, this);
     logger()->info("simulated camera {} serial {} listening on {} (GigE Vision), {}x{} Coord3D_C16, scene: {}",
                    m.width * m.height >= 3000000 ? "3.2 MP" : "", options.serial, options.address, m.width, m.height,
@@ -195,14 +216,13 @@ struct SimulatedCamera::Impl {
     }
 
     const auto& m = source.model;
-    const double slide = slide_mm;
-    if (range.size() != std::size_t{m.width} * m.height || slide != rendered_slide) {
-      const auto t0 = std::chrono::steady_clock::now();
-      source.render(slide, range);
-      rendered_slide = slide;
-      logger()->debug("simulated camera: rendered slide {} mm in {:.0f} ms", slide,
-                      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    std::shared_ptr<const std::vector<std::uint16_t>> current;
+    {
+      std::lock_guard lock(image_mutex);
+      current = image;
     }
+    if (!current) return;
+    const std::vector<std::uint16_t>& range = *current;
     const auto w = static_cast<std::uint32_t>(arv_buffer_get_image_width(buffer));
     const auto h = static_cast<std::uint32_t>(arv_buffer_get_image_height(buffer));
     if (w != m.width || h != m.height || range.size() != std::size_t{w} * h) return;
@@ -249,7 +269,7 @@ SimulatedCamera::SimulatedCamera(SimulatedCameraOptions options, RangeImageSourc
 SimulatedCamera::~SimulatedCamera() = default;
 const std::string& SimulatedCamera::address() const { return impl_->options.address; }
 const RangeImageModel& SimulatedCamera::model() const { return impl_->source.model; }
-void SimulatedCamera::set_slide_position_mm(double slide_mm) { impl_->slide_mm = slide_mm; }
+void SimulatedCamera::set_slide_position_mm(double slide_mm) { impl_->render(slide_mm); }
 double SimulatedCamera::slide_position_mm() const { return impl_->slide_mm; }
 void SimulatedCamera::drop_frames(int frames) { impl_->drop = frames; }
 void SimulatedCamera::lose_packets(int frames, double ratio) {

@@ -15,6 +15,8 @@
 #include <string>
 #include <vector>
 
+#include "fettle/config/part.hpp"
+
 namespace fettle::sim {
 
 /// The range camera's fixed model, published through the Scan3d features.
@@ -51,6 +53,13 @@ RangeImageSource synthetic_range_source(const RangeImageModel& model, const Synt
 double synthetic_depth_mm(const RangeImageModel& model, const SyntheticScene& scene, double slide_mm, double u,
                           double v);
 
+/// The simulator's scanner (fettle::sim::Scanner, sim.hpp) looking at casting `seed` of `recipe`
+/// on the fixture: range images at `model`'s size (rectified: the scanner's lens distortion is
+/// set to zero, as a 3D camera outputs rectified range maps), with the scanner's noise model
+/// unless `noise` is false.
+RangeImageSource scanner_range_source(const config::PartRecipe& recipe, std::uint64_t seed,
+                                      const RangeImageModel& model = {}, bool noise = true);
+
 struct SimulatedCameraOptions {
   std::string address = "127.0.0.1";  ///< listening IPv4 (loopback in tests)
   std::string serial = "FETTLE-SIM-3D";
@@ -71,6 +80,8 @@ class SimulatedCamera {
   [[nodiscard]] const std::string& address() const;
   [[nodiscard]] const RangeImageModel& model() const;
 
+  /// Renders the range image for this slide position (in the caller's thread; with the
+  /// simulator's scanner at 3.2 MP this takes a moment) and serves it from the next frame on.
   void set_slide_position_mm(double slide_mm);
   [[nodiscard]] double slide_position_mm() const;
 
