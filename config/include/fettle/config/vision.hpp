@@ -1,7 +1,33 @@
 #pragma once
-// Vision pipeline settings ([vision] in a part recipe).
+// Vision pipeline settings ([vision] in a part recipe). Lengths in mm, angles in degrees
+// (converted at use). Every field has a default that works for the shipped pump body.
+#include <array>
+#include <string>
+
 namespace fettle::config {
 
-struct VisionSettings {};
+struct VisionSettings {
+  // preprocessing
+  std::string crop_frame = "fixture";                    ///< frame of the pass-through box: fixture | camera
+  std::array<double, 3> crop_min_mm{-250.0, -250.0, -50.0};  ///< pass-through box, lower corner
+  std::array<double, 3> crop_max_mm{250.0, 250.0, 300.0};    ///< pass-through box, upper corner
+  int outlier_neighbours = 8;          ///< statistical outlier removal: neighbours per point
+  double outlier_std_ratio = 2.5;      ///< ... and the allowed spread (standard deviations)
+  // environment removal (fixture plane, RANSAC with the adaptive count of Eq. 10)
+  bool remove_plane = true;
+  double plane_distance_mm = 0.5;      ///< inlier band of the fixture plane
+  double plane_probability = 0.999;    ///< p in k = log(1-p) / log(1-w^n)
+  // localisation
+  double coarse_voxel_mm = 3.0;        ///< voxel for FPFH + RANSAC
+  double feature_radius_mm = 15.0;     ///< FPFH support radius
+  int ransac_max_iterations = 50000;
+  std::string icp_method = "point_to_plane";  ///< point_to_plane (the only method so far)
+  int icp_max_iterations = 40;
+  double min_fitness = 0.6;            ///< a region whose fine fitness is lower fails
+  int min_region_points = 200;         ///< a region with fewer scene points fails
+  // excess material
+  int excess_min_cluster_points = 10;  ///< smaller clusters of excess points are noise
+  bool cache = true;                   ///< cache template data on disk next to the recipe
+};
 
 }  // namespace fettle::config

@@ -1,0 +1,246 @@
+// The vision stage on a synthetic casting with known placement and known excess material:
+// per-region poses, excess volume, template cache, multi-view fusion, failures.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <numbers>
+#include <random>
+
+#include "fettle/vision/excess.hpp"
+#include "fettle/vision/inspect.hpp"
+#include "fettle/vision/multiview.hpp"
+#include "fettle/vision/preprocess.hpp"
+#include "test_support.hpp"
+
+using namespace fettle::vision;
+using fettle::Transform;
+using fettle::Vec3;
+
+namespace {
+
+constexpr double kRiserRadius = 8.0;
+constexpr double kRiserHeight = 10.0;
+const Eigen::Vector2f kRiserAt(-30.0f, -15.0f);
+
+/// A block 120 x 80 x 40 with an off-centre boss (so its pose is unique), sampled on the
+/// surfaces a camera above sees (top faces and walls), normals outward. `riser` adds a
+/// cylinder of excess material on the top face. `random` samples at random positions
+/// (a scan) instead of on a grid (a template).
+Cloud casting(double spacing, bool riser, std::mt19937_64* random) {
+  Cloud c;
+  auto add = [&](const Eigen::Vector3f& p, const Eigen::Vector3f& n) {
+    c.points.push_back(p);
+    c.normals.push_back(n);
+  };
+  auto in_boss = [](float x, float y) { return x >= 10 && x <= 40 && y >= 0 && y <= 25; };
+  auto in_riser = [&](float x, float y) { return riser && (Eigen::Vector2f(x, y) - kRiserAt).norm() <= kRiserRadius; };
+  // Samples a rectangle [a0,a1] x [b0,b1] mapped by f(a, b).
+  auto patch = [&](float a0, float a1, float b0, float b1, auto&& f) {
+    const double area = static_cast<double>((a1 - a0) * (b1 - b0));
+    if (random != nullptr) {
+      std::uniform_real_distribution<float> ua(a0, a1);
+      std::uniform_real_distribution<float> ub(b0, b1);
+      const auto n = static_cast<std::size_t>(area / (spacing * spacing));
+      for (std::size_t i = 0; i < n; ++i) f(ua(*random), ub(*random));
+    } else {
+      const auto s = static_cast<float>(spacing);
+      for (float a = a0; a <= a1; a += s)
+        for (float b = b0; b <= b1; b += s) f(a, b);
+    }
+  };
+  const Eigen::Vector3f up = Eigen::Vector3f::UnitZ();
+  patch(-60, 60, -40, 40, [&](float x, float y) {
+    if (!in_boss(x, y) && !in_riser(x, y)) add({x, y, 40}, up);
+  });
+  patch(10, 40, 0, 25, [&](float x, float y) { add({x, y, 55}, up); });
+  patch(-60, 60, 0, 40, [&](float x, float z) { add({x, -40, z}, -Eigen::Vector3f::UnitY()); });
+  patch(-60, 60, 0, 40, [&](float x, float z) { add({x, 40, z}, Eigen::Vector3f::UnitY()); });
+  patch(-40, 40, 0, 40, [&](float y, float z) { add({-60, y, z}, -Eigen::Vector3f::UnitX()); });
+  patch(-40, 40, 0, 40, [&](float y, float z) { add({60, y, z}, Eigen::Vector3f::UnitX()); });
+  patch(10, 40, 40, 55, [&](float x, float z) { add({x, 0, z}, -Eigen::Vector3f::UnitY()); });
+  patch(10, 40, 40, 55, [&](float x, float z) { add({x, 25, z}, Eigen::Vector3f::UnitY()); });
+  patch(0, 25, 40, 55, [&](float y, float z) { add({10, y, z}, -Eigen::Vector3f::UnitX()); });
+  patch(0, 25, 40, 55, [&](float y, float z) { add({40, y, z}, Eigen::Vector3f::UnitX()); });
+  if (riser) {
+    const auto r = static_cast<float>(kRiserRadius);
+    patch(-r, r, -r, r, [&](float x, float y) {
+      if (x * x + y * y <= r * r) add({kRiserAt.x() + x, kRiserAt.y() + y, 40.0f + static_cast<float>(kRiserHeight)}, up);
+    });
+    const auto circumference = static_cast<float>(2.0 * std::numbers::pi * kRiserRadius);
+    patch(0, circumference, 40, 40 + static_cast<float>(kRiserHeight), [&](float s, float z) {
+      const float a = s / r;
+      const Eigen::Vector3f n(std::cos(a), std::sin(a), 0.0f);
+      add({kRiserAt.x() + r * n.x(), kRiserAt.y() + r * n.y(), z}, n);
+    });
+  }
+  return c;
+}
+
+fettle::config::PartRecipe recipe() {
+  fettle::config::PartRecipe r;
+  r.id = "synthetic-block";
+  r.template_source.voxel_mm = 0.5;
+  r.vision.crop_min_mm = {-150, -150, -20};
+  r.vision.crop_max_mm = {150, 150, 150};
+  r.vision.cache = false;
+  fettle::config::Region riser;
+  riser.name = "riser";
+  riser.roi_center_mm = {-30, -15, 50};
+  riser.roi_size_mm = {36, 36, 30};
+  fettle::config::Region boss;
+  boss.name = "boss";
+  boss.roi_center_mm = {25, 12, 45};
+  boss.roi_size_mm = {50, 45, 30};
+  r.regions = {riser, boss};
+  return r;
+}
+
+/// A scan of the casting placed at T_fixture_part on a table (z = 0), with noise.
+Cloud scan(const Transform& T_fixture_part, std::mt19937_64& rng, double sigma) {
+  Cloud part = transformed(casting(0.35, true, &rng), T_fixture_part);
+  std::uniform_real_distribution<float> u(-120.0f, 120.0f);
+  for (int i = 0; i < 60000; ++i) {
+    const Eigen::Vector3f p(u(rng), u(rng), 0.0f);
+    const Eigen::Vector3f q = (T_fixture_part.inverse() * p.cast<double>()).cast<float>();
+    if (std::abs(q.x()) < 61 && std::abs(q.y()) < 41) continue;  // under the part
+    part.points.push_back(p);
+  }
+  part.normals.clear();
+  std::normal_distribution<float> g(0.0f, static_cast<float>(sigma));
+  for (auto& p : part.points) p.z() += g(rng);
+  return part;
+}
+
+}  // namespace
+
+TEST(Inspect, FindsEveryRegionAtTheTruePoseAndMeasuresTheRiser) {
+  const auto rec = recipe();
+  const auto templ = PartTemplate::build(rec, casting(0.5, false, nullptr));
+  ASSERT_EQ(templ.regions().size(), 2U);
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> off(-3.0, 3.0);
+  const Transform T_fixture_part =
+      Eigen::Translation3d(off(rng), off(rng), 0.0) * Eigen::AngleAxisd(fettle::deg_to_rad(off(rng)), Vec3::UnitZ());
+  const auto r = inspect(rec, templ, scan(T_fixture_part, rng, 0.05));
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  ASSERT_EQ(r->regions.size(), 2U);
+  for (const auto& region : r->regions) {
+    ASSERT_TRUE(region.ok()) << region.error->message;
+    const auto e = test::pose_error(region.registration.T_scene_template, T_fixture_part);
+    EXPECT_LT(e.translation, 0.05) << region.name;
+    EXPECT_LT(fettle::rad_to_deg(e.rotation_rad), 0.05) << region.name;
+    EXPECT_GT(region.registration.fitness, 0.8) << region.name;
+  }
+  const double truth = std::numbers::pi * kRiserRadius * kRiserRadius * kRiserHeight;
+  EXPECT_NEAR(r->regions[0].excess.volume_mm3, truth, 0.1 * truth);
+  EXPECT_NEAR(r->regions[0].excess.max_height_mm, kRiserHeight, 0.3);
+  EXPECT_NEAR(r->regions[0].excess.footprint_mm2, std::numbers::pi * kRiserRadius * kRiserRadius,
+              0.15 * std::numbers::pi * kRiserRadius * kRiserRadius);
+  EXPECT_LT(r->regions[1].excess.volume_mm3, 0.02 * truth);  // the boss region is clean
+  EXPECT_EQ(r->deviation_mm.size(), r->scene_part.size());
+}
+
+TEST(Inspect, AScanWithoutThePartFailsAndSaysSo) {
+  const auto rec = recipe();
+  const auto templ = PartTemplate::build(rec, casting(0.5, false, nullptr));
+  std::mt19937_64 rng(1);
+  Cloud table;
+  std::uniform_real_distribution<float> u(-120.0f, 120.0f);
+  std::normal_distribution<float> g(0.0f, 0.05f);
+  for (int i = 0; i < 80000; ++i) table.points.emplace_back(u(rng), u(rng), g(rng));
+  const auto r = inspect(rec, templ, table);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, "vision.no_part");
+}
+
+TEST(Inspect, MetresAreRefused) {
+  const auto rec = recipe();
+  const auto templ = PartTemplate::build(rec, casting(0.5, false, nullptr));
+  std::mt19937_64 rng(2);
+  const Cloud metres = transformed(scan(Transform::Identity(), rng, 0.05), Transform(Eigen::Scaling(0.001)));
+  const auto r = inspect(rec, templ, metres);
+  ASSERT_FALSE(r.ok());
+  EXPECT_EQ(r.error().code, "vision.units");
+  EXPECT_NE(r.error().message.find("metres"), std::string::npos);
+}
+
+TEST(TemplateCache, SecondLoadComesFromDiskAndMatches) {
+  auto rec = recipe();
+  const auto dir = std::filesystem::temp_directory_path() / ("fettle-tcache-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  rec.source = dir / "block.toml";
+  rec.vision.cache = true;
+  const Cloud golden = casting(0.5, false, nullptr);
+  bool cached = true;
+  const auto a = PartTemplate::load_or_build(rec, golden, "golden v1", &cached);
+  EXPECT_FALSE(cached);
+  const auto b = PartTemplate::load_or_build(rec, golden, "golden v1", &cached);
+  EXPECT_TRUE(cached);
+  ASSERT_EQ(b.regions().size(), a.regions().size());
+  EXPECT_EQ(b.whole().coarse().points, a.whole().coarse().points);
+  EXPECT_EQ(b.regions()[1].cloud.fine().points, a.regions()[1].cloud.fine().points);
+  // A different golden part (or changed ROIs) invalidates the cache.
+  (void)PartTemplate::load_or_build(rec, golden, "golden v2", &cached);
+  EXPECT_FALSE(cached);
+  std::filesystem::remove_all(dir);
+}
+
+TEST(Excess, ABumpOnAPlaneHasItsVolumeAndHeight) {
+  Cloud plane;
+  for (float x = -20; x <= 20; x += 0.5f)
+    for (float y = -20; y <= 20; y += 0.5f) {
+      plane.points.emplace_back(x, y, 0.0f);
+      plane.normals.emplace_back(Eigen::Vector3f::UnitZ());
+    }
+  PrepareSettings ps;
+  ps.features = false;
+  const auto t = PreparedCloud::prepare(plane, ps);
+  Cloud scene;
+  for (float x = -20; x <= 20; x += 0.25f)
+    for (float y = -20; y <= 20; y += 0.25f) {
+      const bool bump = std::abs(x) <= 5 && std::abs(y) <= 5;
+      scene.points.emplace_back(x, y, bump ? 1.5f : 0.1f);  // 0.1 mm is below the 0.2 mm threshold
+    }
+  const auto ex = measure_excess(t, scene, {});
+  EXPECT_NEAR(ex.max_height_mm, 1.5, 1e-5);
+  // The bump covers the template points from -5 to 5 inclusive: 21 x 21 patches of 0.5 mm.
+  const double footprint = 10.5 * 10.5;
+  EXPECT_NEAR(ex.footprint_mm2, footprint, 0.03 * footprint);
+  EXPECT_NEAR(ex.volume_mm3, 1.5 * footprint, 0.03 * 1.5 * footprint);
+  for (const auto h : ex.heights_mm) EXPECT_GT(h, 0.2f);
+}
+
+TEST(MultiView, TwoOverlappingViewsFuseIntoOneLayer) {
+  // One surface seen from two slide positions 80 mm apart; the second view's calibration
+  // guess is 0.8 mm and 0.5 degrees off.
+  std::mt19937_64 rng(3);
+  const Cloud surface = casting(0.4, false, &rng);
+  Cloud first_frame_surface = surface;
+  first_frame_surface.normals.clear();
+  Transform T_first_second = Transform::Identity();
+  T_first_second.translation() = Vec3(80.0, 0.0, 0.0);
+  View v0;
+  v0.cloud = crop_box(first_frame_surface, Transform::Identity(), Vec3(-70, -50, -1), Vec3(30, 50, 60));
+  View v1;
+  const Cloud second_all = transformed(first_frame_surface, T_first_second.inverse());
+  v1.cloud = crop_box(second_all, Transform::Identity(), Vec3(-110, -50, -1), Vec3(-10, 50, 60));  // overlap x in [-30, 30] of view 0
+  v1.T_first_view = T_first_second * Eigen::Translation3d(0.8, -0.5, 0.3) *
+                    Eigen::AngleAxisd(fettle::deg_to_rad(0.5), Vec3::UnitZ());
+  FuseSettings fs;
+  fs.voxel_mm = 0.5;
+  const auto fused = fuse_views({v0, v1}, fs);
+  ASSERT_TRUE(fused.ok()) << fused.error().message;
+  const auto e = test::pose_error(fused->T_first_view[1], T_first_second);
+  EXPECT_LT(e.translation, 0.05);
+  EXPECT_LT(fettle::rad_to_deg(e.rotation_rad), 0.05);
+  // No doubled layer: on the top face in the overlap every fused point lies on z = 40.
+  std::size_t on_top = 0;
+  for (const auto& p : fused->cloud.points)
+    if (p.x() > -25 && p.x() < 5 && p.y() > -35 && p.y() < -5 && p.z() > 35) {
+      ++on_top;
+      EXPECT_NEAR(p.z(), 40.0f, 0.05f);
+    }
+  EXPECT_GT(on_top, 1000U);
+  // One point per neighbourhood: the overlap is not denser than the rest.
+  EXPECT_LT(fused->cloud.size(), v0.cloud.size() + v1.cloud.size());
+}

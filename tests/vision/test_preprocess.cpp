@@ -1,0 +1,175 @@
+// Preprocessing: voxel centroid, crop, outlier removal, normals; cloud files and bad input.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <fstream>
+#include <random>
+
+#include "fettle/core/error.hpp"
+#include "fettle/vision/preprocess.hpp"
+#include "test_support.hpp"
+
+using namespace fettle::vision;
+using ::testing::HasSubstr;
+namespace fs = std::filesystem;
+
+namespace {
+
+fs::path temp_path(const std::string& name) {
+  return fs::temp_directory_path() / ("fettle-vision-" + std::to_string(::getpid()) + "-" + name);
+}
+
+void write_text(const fs::path& p, const std::string& text) { std::ofstream(p) << text; }
+
+}  // namespace
+
+TEST(VoxelDownsample, OnePointPerVoxelAtTheCentroidOfItsPoints) {
+  Cloud c;
+  // Voxel size 1: the grid starts at the minimum point (0,0,0).
+  c.points = {{0.1f, 0.1f, 0.1f}, {0.3f, 0.5f, 0.9f}, {0.8f, 0.3f, 0.2f},  // voxel (0,0,0)
+              {2.5f, 0.5f, 0.5f},                                          // voxel (2,0,0)
+              {2.2f, 3.1f, 0.4f}, {2.6f, 3.9f, 0.6f}};                     // voxel (2,3,0)
+  const Cloud d = voxel_downsample(c, 1.0);
+  ASSERT_EQ(d.size(), 3U);
+  auto has = [&](const Eigen::Vector3f& q) {
+    for (const auto& p : d.points)
+      if ((p - q).norm() < 1e-5f) return true;
+    return false;
+  };
+  EXPECT_TRUE(has({0.4f, 0.3f, 0.4f}));  // mean of the first three, not the voxel centre
+  EXPECT_TRUE(has({2.5f, 0.5f, 0.5f}));
+  EXPECT_TRUE(has({2.4f, 3.5f, 0.5f}));
+}
+
+TEST(VoxelDownsample, AveragesNormalsAndKeepsThemUnit) {
+  Cloud c;
+  c.points = {{0.1f, 0.1f, 0.1f}, {0.2f, 0.2f, 0.2f}};
+  c.normals = {Eigen::Vector3f::UnitZ(), Eigen::Vector3f(0.0f, 1.0f, 1.0f).normalized()};
+  const Cloud d = voxel_downsample(c, 1.0);
+  ASSERT_EQ(d.size(), 1U);
+  ASSERT_TRUE(d.has_normals());
+  EXPECT_NEAR(d.normals[0].norm(), 1.0f, 1e-5f);
+  EXPECT_GT(d.normals[0].z(), d.normals[0].y());
+}
+
+TEST(VoxelDownsample, DenseGridKeepsOnePerCellAndVoxelForCountHitsTarget) {
+  Cloud c;
+  for (int x = 0; x < 100; ++x)
+    for (int y = 0; y < 100; ++y) c.points.emplace_back(0.1f * static_cast<float>(x), 0.1f * static_cast<float>(y), 0.0f);
+  EXPECT_EQ(voxel_downsample(c, 1.0).size(), 100U);  // 10 x 10 cells of 1 x 1
+  const double v = voxel_for_count(c, 400);
+  const std::size_t n = voxel_downsample(c, v).size();
+  EXPECT_LE(n, 400U);
+  EXPECT_GT(n, 250U);
+}
+
+TEST(CropBox, KeepsPointsInsideTheBoxGivenInAnotherFrame) {
+  Cloud c;
+  c.points = {{0, 0, 0}, {10, 0, 0}, {20, 0, 0}};
+  fettle::Transform T_frame_cloud = fettle::Transform::Identity();
+  T_frame_cloud.translation() = fettle::Vec3(-10, 0, 0);  // the box frame sees the cloud shifted by -10
+  const Cloud k = crop_box(c, T_frame_cloud, {-1, -1, -1}, {1, 1, 1});
+  ASSERT_EQ(k.size(), 1U);
+  EXPECT_FLOAT_EQ(k.points[0].x(), 10.0f);  // returned in the cloud's own frame
+}
+
+TEST(StatisticalOutliers, RemovesIsolatedPointsAndKeepsTheSurface) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<float> u(0.0f, 50.0f);
+  Cloud c;
+  for (int i = 0; i < 5000; ++i) c.points.emplace_back(u(rng), u(rng), 0.0f);
+  c.points.emplace_back(25.0f, 25.0f, 40.0f);
+  c.points.emplace_back(-30.0f, 10.0f, 5.0f);
+  const Cloud k = remove_statistical_outliers(c, 8, 2.5);
+  EXPECT_GT(k.size(), 4900U);
+  for (const auto& p : k.points) EXPECT_LT(std::abs(p.z()), 1e-3f);
+}
+
+TEST(StatisticalOutliers, OrganizedVariantUsesImageNeighbours) {
+  fettle::OrganizedCloud o;
+  o.width = 60;
+  o.height = 40;
+  for (std::uint32_t v = 0; v < o.height; ++v)
+    for (std::uint32_t u = 0; u < o.width; ++u) o.points.emplace_back(static_cast<float>(u), static_cast<float>(v), 500.0f);
+  o.points[20 * 60 + 30].z() = 560.0f;  // a flying pixel
+  o.points[5] = fettle::OrganizedCloud::invalid();
+  const auto k = remove_statistical_outliers(o, 1, 3.0);
+  EXPECT_FALSE(k.is_valid(20 * 60 + 30));
+  EXPECT_FALSE(k.is_valid(5));
+  EXPECT_EQ(k.width, 60U);
+  EXPECT_GT(k.count_valid(), o.count_valid() - 12);  // the spike and a few of its neighbours at most
+}
+
+TEST(Normals, PcaNormalsOfAPlaneFaceTheViewpoint) {
+  Cloud c;
+  for (int x = 0; x < 30; ++x)
+    for (int y = 0; y < 30; ++y) c.points.emplace_back(static_cast<float>(x), static_cast<float>(y), 100.0f);
+  estimate_normals(c, 10, Eigen::Vector3f::Zero());
+  ASSERT_TRUE(c.has_normals());
+  for (const auto& n : c.normals) EXPECT_NEAR(n.z(), -1.0f, 1e-4f);
+}
+
+TEST(Normals, IntegralImageNormalsOfATiltedPlane) {
+  fettle::OrganizedCloud o;
+  o.width = 80;
+  o.height = 60;
+  const Eigen::Vector3f n_true = Eigen::Vector3f(0.0f, 0.5f, -1.0f).normalized();
+  for (std::uint32_t v = 0; v < o.height; ++v)
+    for (std::uint32_t u = 0; u < o.width; ++u) {
+      const float x = static_cast<float>(u) - 40.0f;
+      const float y = static_cast<float>(v) - 30.0f;
+      o.points.emplace_back(x, y, 400.0f + 0.5f * y);  // z = 400 + y/2: normal (0, 0.5, -1)
+    }
+  const Cloud c = organized_normals(o);
+  ASSERT_GT(c.size(), 2000U);  // 80 x 60 minus the smoothing border
+  for (const auto& n : c.normals) EXPECT_GT(n.dot(n_true), 0.999f);
+}
+
+TEST(CloudFiles, LoadsPcdWithNaNsAndKeepsOnlyFinitePoints) {
+  const Cloud scene = load_cloud(test::data("milk_cartoon_all_small_clorox.pcd"));
+  EXPECT_GT(scene.size(), 100000U);
+  EXPECT_LT(scene.size(), 640U * 480U);  // the Kinect frame has invalid pixels
+  for (const auto& p : scene.points) ASSERT_TRUE(p.allFinite());
+}
+
+TEST(CloudFiles, PlyRoundTrip) {
+  Cloud c;
+  c.points = {{1, 2, 3}, {4, 5, 6}};
+  c.normals = {Eigen::Vector3f::UnitX(), Eigen::Vector3f::UnitY()};
+  const auto p = temp_path("rt.ply");
+  save_ply(p, c);
+  const Cloud r = load_cloud(p);
+  ASSERT_EQ(r.size(), 2U);
+  EXPECT_EQ(r.points[1], c.points[1]);
+  ASSERT_TRUE(r.has_normals());
+  EXPECT_EQ(r.normals[1], c.normals[1]);
+  fs::remove(p);
+}
+
+TEST(CloudFiles, BadInputIsAUserErrorThatSaysWhat) {
+  EXPECT_THAT([] { (void)load_cloud("/nonexistent/scan.ply"); },
+              ::testing::ThrowsMessage<fettle::UserError>(HasSubstr("no such file")));
+  const auto empty = temp_path("empty.pcd");
+  write_text(empty, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 0\nHEIGHT 1\nPOINTS 0\nDATA ascii\n");
+  EXPECT_THAT([&] { (void)load_cloud(empty); }, ::testing::Throws<fettle::UserError>());
+  const auto nan = temp_path("nan.pcd");
+  write_text(nan, "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n"
+                  "nan nan nan\nnan nan nan\nnan nan nan\n");
+  EXPECT_THAT([&] { (void)load_cloud(nan); }, ::testing::ThrowsMessage<fettle::UserError>(HasSubstr("all NaN")));
+  const auto junk = temp_path("junk.ply");
+  write_text(junk, "this is not a point cloud\n");
+  EXPECT_THAT([&] { (void)load_cloud(junk); }, ::testing::Throws<fettle::UserError>());
+  const auto txt = temp_path("cloud.xyz");
+  write_text(txt, "1 2 3\n");
+  EXPECT_THAT([&] { (void)load_cloud(txt); }, ::testing::ThrowsMessage<fettle::UserError>(HasSubstr("use .ply or .pcd")));
+  for (const auto& p : {empty, nan, junk, txt}) fs::remove(p);
+}
+
+TEST(Units, MetresWhereMillimetresAreExpectedAreDetectedFromTheExtent) {
+  const Cloud milk = load_cloud(test::data("milk.pcd"));  // a carton in metres: ~0.2 units across
+  EXPECT_THAT([&] { require_millimetres(milk, "scan.pcd"); },
+              ::testing::ThrowsMessage<fettle::UserError>(HasSubstr("looks like metres")));
+  const Cloud milk_mm = transformed(milk, fettle::Transform(Eigen::Scaling(1000.0)));
+  EXPECT_NO_THROW(require_millimetres(milk_mm, "scan.pcd"));
+}

@@ -1,0 +1,44 @@
+#pragma once
+// Shared helpers for the vision tests: data paths, random poses, pose errors.
+#include <filesystem>
+#include <random>
+#include <string>
+
+#include "fettle/core/geometry.hpp"
+#include "fettle/vision/cloud.hpp"
+
+namespace fettle::vision::test {
+
+inline std::filesystem::path data(const std::string& name) { return std::filesystem::path(FETTLE_TEST_DATA_DIR) / name; }
+
+/// A random rigid transform: rotation angle exactly `angle_rad` about a random axis,
+/// translation of length `translation`.
+inline Transform random_transform(std::mt19937_64& rng, double angle_rad, double translation) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  const Vec3 axis = Vec3(g(rng), g(rng), g(rng)).normalized();
+  const Vec3 dir = Vec3(g(rng), g(rng), g(rng)).normalized();
+  Transform T = Transform::Identity();
+  T.linear() = Eigen::AngleAxisd(angle_rad, axis).toRotationMatrix();
+  T.translation() = dir * translation;
+  return T;
+}
+
+inline Cloud with_noise(const Cloud& c, double sigma, std::mt19937_64& rng) {
+  std::normal_distribution<float> g(0.0f, static_cast<float>(sigma));
+  Cloud out;
+  out.points = c.points;
+  for (auto& p : out.points) p += Eigen::Vector3f(g(rng), g(rng), g(rng));
+  return out;
+}
+
+struct PoseError {
+  double translation;
+  double rotation_rad;
+};
+
+inline PoseError pose_error(const Transform& estimate, const Transform& truth) {
+  const Transform d = truth.inverse() * estimate;
+  return {(estimate.translation() - truth.translation()).norm(), rotation_angle_rad(d)};
+}
+
+}  // namespace fettle::vision::test

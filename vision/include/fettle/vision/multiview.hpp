@@ -1,0 +1,34 @@
+#pragma once
+// Multi-view fusion: views from several slide positions into the first view's frame.
+#include <vector>
+
+#include "fettle/core/geometry.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/vision/cloud.hpp"
+
+namespace fettle::vision {
+
+struct View {
+  Cloud cloud;                                            ///< camera frame of this view
+  Transform T_first_view = Transform::Identity();         ///< initial guess from the slide calibration
+};
+
+struct FuseSettings {
+  double voxel_mm = 0.3;           ///< neighbourhood for averaging overlapping surfaces
+  double icp_max_distance_mm = 2.0;
+  int icp_max_iterations = 30;
+  double min_fitness = 0.2;        ///< a pairwise refinement below this keeps the calibration guess
+};
+
+struct FusedCloud {
+  Cloud cloud;                          ///< first view's frame
+  std::vector<Transform> T_first_view;  ///< refined pose of every view (first = identity)
+  std::vector<double> pair_fitness;     ///< fitness of view i+1 against view i
+};
+
+/// Each view starts at its calibration pose, is refined against the previous view (ICP on
+/// the overlap), the pairwise results are chained (T_0_i = T_0_{i-1} * T_{i-1}_i) and the
+/// clouds are merged; overlapping surfaces become one layer by neighbourhood averaging.
+Result<FusedCloud> fuse_views(const std::vector<View>& views, const FuseSettings& settings);
+
+}  // namespace fettle::vision

@@ -1,0 +1,39 @@
+#pragma once
+// Preprocessing: voxel grid (centroid per voxel), pass-through crop, outlier removal, normals.
+#include <cstddef>
+
+#include "fettle/core/cloud.hpp"
+#include "fettle/core/geometry.hpp"
+#include "fettle/vision/cloud.hpp"
+
+namespace fettle::vision {
+
+/// One point per occupied voxel, at the centroid of the voxel's points (normals averaged
+/// and renormalised when present). voxel_size > 0, in the cloud's unit.
+Cloud voxel_downsample(const Cloud& cloud, double voxel_size);
+
+/// The voxel size for which voxel_downsample keeps about `target_points` points
+/// (scale-free: used where the unit of a cloud is unknown).
+double voxel_for_count(const Cloud& cloud, std::size_t target_points);
+
+/// Keeps the points inside the box [min, max] given in `frame`, where T_frame_cloud maps
+/// the cloud's points into that frame. Returned points stay in the cloud's frame.
+Cloud crop_box(const Cloud& cloud, const Transform& T_frame_cloud, const Eigen::Vector3d& min,
+               const Eigen::Vector3d& max);
+
+/// Statistical outlier removal: drops points whose mean distance to their k nearest
+/// neighbours exceeds mean + std_ratio * stddev over the cloud.
+Cloud remove_statistical_outliers(const Cloud& cloud, int k, double std_ratio);
+
+/// Organized variant: neighbours are the valid pixels of a (2r+1)^2 window (no search tree).
+OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int window_radius, double std_ratio);
+
+/// Normals from the k nearest neighbours (PCA), oriented towards `viewpoint`.
+void estimate_normals(Cloud& cloud, int k, const Eigen::Vector3f& viewpoint = Eigen::Vector3f::Zero());
+
+/// Normals of an organized cloud from integral images (average 3D gradient); returns the
+/// valid points that have a valid normal, normals oriented towards the camera (origin).
+Cloud organized_normals(const OrganizedCloud& cloud, float depth_change_factor = 0.02f,
+                        float smoothing_size = 10.0f);
+
+}  // namespace fettle::vision

@@ -1,0 +1,116 @@
+#pragma once
+// Rigid registration: a cloud prepared once (downsampled, normals, FPFH features, search
+// trees), coarse alignment (FPFH correspondences + RANSAC with pre-rejection, optionally
+// bounded by a pose prior) and fine point-to-plane ICP. Results are values.
+//
+// Convention: T_scene_template maps template points into the scene. `fitness` is the
+// fraction of template points that have a scene point within the inlier distance, `rmse`
+// the RMS distance of those inliers (Open3D's definitions with the template as source).
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <optional>
+
+#include "fettle/core/geometry.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/vision/cloud.hpp"
+
+namespace fettle::vision {
+
+struct PrepareSettings {
+  double coarse_voxel = 3.0;     ///< voxel of the coarse (feature) cloud
+  double feature_radius = 15.0;  ///< FPFH support radius
+  double normal_radius = 0.0;    ///< coarse normals radius; 0 = 2 * coarse_voxel
+  int fine_normal_neighbours = 12;  ///< k for the normals of the fine cloud when it has none
+  int threads = 0;               ///< 0 = one per core
+  bool features = true;          ///< false: no coarse cloud or FPFH (fine ICP only)
+};
+
+/// A cloud with everything registration needs, computed once (templates are prepared at
+/// recipe load and cached; scenes every cycle). Cheap to copy (shared, immutable).
+class PreparedCloud {
+ public:
+  PreparedCloud();
+  static PreparedCloud prepare(const Cloud& fine, const PrepareSettings& settings);
+
+  [[nodiscard]] const Cloud& fine() const;    ///< full resolution, with normals
+  [[nodiscard]] const Cloud& coarse() const;  ///< downsampled, with normals
+  [[nodiscard]] const PrepareSettings& settings() const;
+  [[nodiscard]] bool empty() const;
+  /// Median spacing of the fine points (nearest-neighbour distance).
+  [[nodiscard]] double fine_spacing() const;
+
+  /// Binary cache of clouds, normals and features (search trees are rebuilt on load, which
+  /// takes milliseconds). load() returns nullopt when the file is missing or stale.
+  void save(const std::filesystem::path& file) const;
+  static std::optional<PreparedCloud> load(const std::filesystem::path& file);
+
+  struct Impl;
+  [[nodiscard]] const Impl& impl() const { return *impl_; }
+
+ private:
+  explicit PreparedCloud(std::shared_ptr<const Impl> impl);
+  std::shared_ptr<const Impl> impl_;
+};
+
+struct Registration {
+  Transform T_scene_template = Transform::Identity();
+  double fitness = 0.0;
+  double rmse = 0.0;
+  std::size_t inliers = 0;
+  bool converged = false;
+  int iterations = 0;
+};
+
+/// Where the template is expected in the scene and how far it may be from there.
+struct PosePrior {
+  Transform T_scene_template = Transform::Identity();
+  double position_tolerance = 5.0;    ///< cloud unit
+  double rotation_tolerance_rad = 0.09;
+};
+
+struct CoarseSettings {
+  std::int64_t max_iterations = 50000;
+  double probability = 0.999;       ///< stop early by Eq. 10 on the correspondence inlier ratio
+  double inlier_distance = 0.0;     ///< 0 = 1.5 * template coarse voxel
+  double edge_similarity = 0.9;     ///< pre-rejection: sample edge lengths must agree this well
+  std::optional<PosePrior> prior;   ///< hypotheses outside the prior are rejected
+  std::uint64_t seed = 42;
+  int threads = 0;
+};
+
+/// FPFH + RANSAC. Fails with vision.no_match when no hypothesis explains enough points.
+Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedCloud& scene, const CoarseSettings& settings);
+
+struct FineSettings {
+  double max_distance = 0.0;   ///< first correspondence distance; 0 = 2 * template coarse voxel
+  double min_distance = 0.0;   ///< final correspondence distance; 0 = 3 * template fine spacing
+  int max_iterations = 40;
+  double convergence_translation = 1e-4;  ///< last step below this (relative to the coarse voxel) ...
+  double convergence_rotation_rad = 1e-5;  ///< ... and this: converged (at most 8 steps at min_distance)
+  double fitness_distance = 0.0;  ///< inlier distance of the reported fitness; 0 = min_distance
+  std::size_t coarse_points = 20000;  ///< scene points used before the last distance step
+  int threads = 0;
+};
+
+/// Point-to-plane ICP of scene points onto the template surface (template normals and
+/// search tree are prepared), starting at `initial`. Fails with vision.too_few_points.
+Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, const Transform& initial,
+                            const FineSettings& settings);
+
+/// Fitness and RMSE of a pose: template points with a scene point within `distance`.
+Registration evaluate(const Cloud& templ, const Cloud& scene, const Transform& T_scene_template, double distance);
+
+struct LocateSettings {
+  std::size_t coarse_points = 3000;  ///< the template is downsampled to about this many points
+  double feature_radius_voxels = 5.0;
+  CoarseSettings coarse;
+  FineSettings fine;
+  double min_fitness = 0.3;
+};
+
+/// The standalone two-cloud tool (`fettle locate`): any unit, any two clouds. The voxel
+/// size follows from the template's point count, so metres and millimetres both work.
+Result<Registration> locate(const Cloud& templ, const Cloud& scene, const LocateSettings& settings);
+
+}  // namespace fettle::vision

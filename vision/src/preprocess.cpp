@@ -1,0 +1,254 @@
+// Preprocessing: voxel grid (centroid per voxel), crop, outlier removal, normals.
+#include "fettle/vision/preprocess.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <numeric>
+#include <utility>
+
+#include <Eigen/Eigenvalues>
+#include <pcl/features/integral_image_normal.h>
+
+#include "detail.hpp"
+
+namespace fettle::vision {
+
+namespace {
+
+struct VoxelKeys {
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;  // (voxel key, point index), sorted
+};
+
+VoxelKeys voxel_keys(const std::vector<Eigen::Vector3f>& points, double voxel) {
+  VoxelKeys out;
+  if (points.empty()) return out;
+  Eigen::Vector3f lo = points.front();
+  for (const auto& p : points) lo = lo.cwiseMin(p);
+  const double inv = 1.0 / voxel;
+  out.keyed.resize(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const Eigen::Vector3d q = ((points[i] - lo).cast<double>() * inv).array().floor();
+    // 21 bits per axis: 2 million voxels per axis is far more than any scan needs; larger
+    // indices wrap, which only merges voxels 2^21 voxels apart (never adjacent ones).
+    const auto ix = static_cast<std::uint64_t>(q.x()) & 0x1FFFFF;
+    const auto iy = static_cast<std::uint64_t>(q.y()) & 0x1FFFFF;
+    const auto iz = static_cast<std::uint64_t>(q.z()) & 0x1FFFFF;
+    out.keyed[i] = {(ix << 42) | (iy << 21) | iz, static_cast<std::uint32_t>(i)};
+  }
+  std::sort(out.keyed.begin(), out.keyed.end());
+  return out;
+}
+
+}  // namespace
+
+Cloud voxel_downsample(const Cloud& cloud, double voxel_size) {
+  if (cloud.empty() || !(voxel_size > 0.0)) return cloud;
+  const auto keys = voxel_keys(cloud.points, voxel_size);
+  const bool normals = cloud.has_normals();
+  Cloud out;
+  std::size_t i = 0;
+  while (i < keys.keyed.size()) {
+    std::size_t j = i;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d nsum = Eigen::Vector3d::Zero();
+    while (j < keys.keyed.size() && keys.keyed[j].first == keys.keyed[i].first) {
+      const auto idx = keys.keyed[j].second;
+      sum += cloud.points[idx].cast<double>();
+      if (normals) {
+        // Normals of one voxel may be flipped against each other: align with the first.
+        Eigen::Vector3d n = cloud.normals[idx].cast<double>();
+        if (j > i && n.dot(nsum) < 0) n = -n;
+        nsum += n;
+      }
+      ++j;
+    }
+    out.points.emplace_back((sum / static_cast<double>(j - i)).cast<float>());
+    if (normals) {
+      const double len = nsum.norm();
+      out.normals.emplace_back(len > 1e-12 ? Eigen::Vector3f((nsum / len).cast<float>())
+                                           : cloud.normals[keys.keyed[i].second]);
+    }
+    i = j;
+  }
+  return out;
+}
+
+double voxel_for_count(const Cloud& cloud, std::size_t target_points) {
+  if (cloud.size() <= target_points || cloud.empty()) return 0.0;
+  const double diag = std::max(1e-9, static_cast<double>(bounds(cloud).diagonal()));
+  double lo = diag * 1e-5;
+  double hi = diag;
+  auto count = [&](double v) {
+    const auto keys = voxel_keys(cloud.points, v);
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < keys.keyed.size(); ++i) n += (i == 0 || keys.keyed[i].first != keys.keyed[i - 1].first) ? 1 : 0;
+    return n;
+  };
+  for (int it = 0; it < 30; ++it) {
+    const double mid = std::sqrt(lo * hi);
+    const std::size_t n = count(mid);
+    if (n > target_points)
+      lo = mid;
+    else
+      hi = mid;
+    if (hi / lo < 1.03) break;
+  }
+  return hi;
+}
+
+Cloud crop_box(const Cloud& cloud, const Transform& T_frame_cloud, const Eigen::Vector3d& min,
+               const Eigen::Vector3d& max) {
+  const Eigen::Matrix3f R = T_frame_cloud.rotation().cast<float>();
+  const Eigen::Vector3f t = T_frame_cloud.translation().cast<float>();
+  const Eigen::Vector3f lo = min.cast<float>();
+  const Eigen::Vector3f hi = max.cast<float>();
+  const bool normals = cloud.has_normals();
+  Cloud out;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3f q = R * cloud.points[i] + t;
+    if ((q.array() >= lo.array()).all() && (q.array() <= hi.array()).all()) {
+      out.points.push_back(cloud.points[i]);
+      if (normals) out.normals.push_back(cloud.normals[i]);
+    }
+  }
+  return out;
+}
+
+Cloud remove_statistical_outliers(const Cloud& cloud, int k, double std_ratio) {
+  if (k <= 0 || cloud.size() <= static_cast<std::size_t>(k) + 1) return cloud;
+  const auto tree = detail::make_tree(cloud.points);
+  std::vector<double> mean_dist(cloud.size(), 0.0);
+  detail::parallel_for(cloud.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
+    pcl::Indices idx(static_cast<std::size_t>(k) + 1);
+    std::vector<float> d2(static_cast<std::size_t>(k) + 1);
+    pcl::PointXYZ q;
+    for (std::size_t i = b; i < e; ++i) {
+      q.getVector3fMap() = cloud.points[i];
+      const int found = tree->nearestKSearch(q, k + 1, idx, d2);
+      double s = 0.0;
+      for (int j = 0; j < found; ++j) s += std::sqrt(static_cast<double>(d2[static_cast<std::size_t>(j)]));
+      mean_dist[i] = found > 1 ? s / (found - 1) : 0.0;  // the point itself is at distance 0
+    }
+  });
+  const double n = static_cast<double>(mean_dist.size());
+  const double mean = std::accumulate(mean_dist.begin(), mean_dist.end(), 0.0) / n;
+  double var = 0.0;
+  for (double d : mean_dist) var += (d - mean) * (d - mean);
+  const double limit = mean + std_ratio * std::sqrt(var / std::max(1.0, n - 1.0));
+  Cloud out;
+  const bool normals = cloud.has_normals();
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (mean_dist[i] > limit) continue;
+    out.points.push_back(cloud.points[i]);
+    if (normals) out.normals.push_back(cloud.normals[i]);
+  }
+  return out;
+}
+
+OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int window_radius, double std_ratio) {
+  if (window_radius <= 0 || cloud.width == 0 || cloud.height == 0) return cloud;
+  const int w = static_cast<int>(cloud.width);
+  const int h = static_cast<int>(cloud.height);
+  std::vector<float> mean_dist(cloud.size(), -1.0f);
+  detail::parallel_for(static_cast<std::size_t>(h), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
+    for (int v = static_cast<int>(b); v < static_cast<int>(e); ++v) {
+      for (int u = 0; u < w; ++u) {
+        const auto i = static_cast<std::size_t>(v * w + u);
+        const Eigen::Vector3f& p = cloud.points[i];
+        if (!p.allFinite()) continue;
+        float s = 0.0f;
+        int n = 0;
+        for (int dv = -window_radius; dv <= window_radius; ++dv) {
+          const int vv = v + dv;
+          if (vv < 0 || vv >= h) continue;
+          for (int du = -window_radius; du <= window_radius; ++du) {
+            const int uu = u + du;
+            if (uu < 0 || uu >= w || (du == 0 && dv == 0)) continue;
+            const Eigen::Vector3f& q = cloud.points[static_cast<std::size_t>(vv * w + uu)];
+            if (!q.allFinite()) continue;
+            s += (q - p).norm();
+            ++n;
+          }
+        }
+        mean_dist[i] = n > 0 ? s / static_cast<float>(n) : std::numeric_limits<float>::infinity();
+      }
+    }
+  });
+  double sum = 0.0;
+  double sum2 = 0.0;
+  std::size_t n = 0;
+  for (float d : mean_dist) {
+    if (d < 0.0f || !std::isfinite(d)) continue;
+    sum += d;
+    sum2 += static_cast<double>(d) * d;
+    ++n;
+  }
+  OrganizedCloud out = cloud;
+  if (n < 2) return out;
+  const double mean = sum / static_cast<double>(n);
+  const double sd = std::sqrt(std::max(0.0, sum2 / static_cast<double>(n) - mean * mean));
+  const double limit = mean + std_ratio * sd;
+  for (std::size_t i = 0; i < out.size(); ++i)
+    if (mean_dist[i] >= 0.0f && !(mean_dist[i] <= limit)) out.points[i] = OrganizedCloud::invalid();
+  return out;
+}
+
+void estimate_normals(Cloud& cloud, int k, const Eigen::Vector3f& viewpoint) {
+  cloud.normals.assign(cloud.size(), Eigen::Vector3f::UnitZ());
+  if (cloud.size() < 3) return;
+  const auto tree = detail::make_tree(cloud.points);
+  const int kk = std::min<int>(k, static_cast<int>(cloud.size()));
+  detail::parallel_for(cloud.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
+    pcl::Indices idx(static_cast<std::size_t>(kk));
+    std::vector<float> d2(static_cast<std::size_t>(kk));
+    pcl::PointXYZ q;
+    for (std::size_t i = b; i < e; ++i) {
+      q.getVector3fMap() = cloud.points[i];
+      const int found = tree->nearestKSearch(q, kk, idx, d2);
+      if (found < 3) continue;
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      for (int j = 0; j < found; ++j) mean += cloud.points[static_cast<std::size_t>(idx[static_cast<std::size_t>(j)])].cast<double>();
+      mean /= found;
+      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+      for (int j = 0; j < found; ++j) {
+        const Eigen::Vector3d d = cloud.points[static_cast<std::size_t>(idx[static_cast<std::size_t>(j)])].cast<double>() - mean;
+        cov += d * d.transpose();
+      }
+      Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es;
+      es.computeDirect(cov);
+      Eigen::Vector3f n = es.eigenvectors().col(0).cast<float>().normalized();
+      if (n.dot(viewpoint - cloud.points[i]) < 0.0f) n = -n;
+      cloud.normals[i] = n;
+    }
+  });
+}
+
+Cloud organized_normals(const OrganizedCloud& cloud, float depth_change_factor, float smoothing_size) {
+  Cloud out;
+  if (cloud.width < 3 || cloud.height < 3) return out;
+  auto pc = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  pc->width = cloud.width;
+  pc->height = cloud.height;
+  pc->is_dense = false;
+  pc->resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) (*pc)[i].getVector3fMap() = cloud.points[i];
+  pcl::IntegralImageNormalEstimation<pcl::PointXYZ, pcl::Normal> ne;
+  ne.setNormalEstimationMethod(ne.AVERAGE_3D_GRADIENT);
+  ne.setMaxDepthChangeFactor(depth_change_factor);
+  ne.setNormalSmoothingSize(smoothing_size);
+  ne.setInputCloud(pc);
+  pcl::PointCloud<pcl::Normal> normals;
+  ne.compute(normals);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3f n = normals[i].getNormalVector3fMap();
+    if (!cloud.points[i].allFinite() || !n.allFinite()) continue;
+    out.points.push_back(cloud.points[i]);
+    Eigen::Vector3f nn = n.normalized();
+    if (nn.dot(-cloud.points[i]) < 0.0f) nn = -nn;
+    out.normals.push_back(nn);
+  }
+  return out;
+}
+
+}  // namespace fettle::vision

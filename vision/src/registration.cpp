@@ -1,0 +1,459 @@
+// Prepared clouds, FPFH + RANSAC coarse alignment, point-to-plane ICP.
+#include "fettle/vision/registration.hpp"
+
+#include <algorithm>
+#include <array>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <mutex>
+#include <random>
+#include <string>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Geometry>
+#include <pcl/features/fpfh_omp.h>
+#include <pcl/features/normal_3d_omp.h>
+#include <pcl/kdtree/impl/kdtree_flann.hpp>
+#include <pcl/search/kdtree.h>
+
+#include "detail.hpp"
+#include "prepared_impl.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/vision/plane.hpp"
+#include "fettle/vision/preprocess.hpp"
+
+namespace fettle::vision {
+
+PreparedCloud::PreparedCloud() : impl_(std::make_shared<Impl>()) {}
+PreparedCloud::PreparedCloud(std::shared_ptr<const Impl> impl) : impl_(std::move(impl)) {}
+const Cloud& PreparedCloud::fine() const { return impl_->fine; }
+const Cloud& PreparedCloud::coarse() const { return impl_->coarse; }
+const PrepareSettings& PreparedCloud::settings() const { return impl_->settings; }
+bool PreparedCloud::empty() const { return impl_->fine.empty(); }
+double PreparedCloud::fine_spacing() const { return impl_->fine_spacing; }
+
+namespace {
+
+/// Normals of the coarse cloud over a radius, oriented like the (averaged) fine normals.
+void coarse_normals(Cloud& coarse, double radius, int threads) {
+  const auto pc = detail::to_pcl(coarse.points);
+  pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(static_cast<unsigned>(threads));
+  ne.setInputCloud(pc);
+  ne.setSearchMethod(std::make_shared<pcl::search::KdTree<pcl::PointXYZ>>(false));
+  ne.setRadiusSearch(radius);
+  pcl::PointCloud<pcl::Normal> normals;
+  ne.compute(normals);
+  for (std::size_t i = 0; i < coarse.size(); ++i) {
+    Eigen::Vector3f n = normals[i].getNormalVector3fMap();
+    if (!n.allFinite() || n.norm() < 0.5f) continue;  // keep the averaged fine normal
+    n.normalize();
+    if (n.dot(coarse.normals[i]) < 0.0f) n = -n;
+    coarse.normals[i] = n;
+  }
+}
+
+}  // namespace
+
+PreparedCloud PreparedCloud::prepare(const Cloud& fine, const PrepareSettings& settings) {
+  auto impl = std::make_shared<Impl>();
+  impl->settings = settings;
+  const int threads = detail::thread_count(settings.threads);
+  impl->fine = fine;
+  if (!impl->fine.has_normals()) estimate_normals(impl->fine, settings.fine_normal_neighbours);
+  if (!settings.features) {
+    impl->build_trees();
+    return PreparedCloud(std::move(impl));
+  }
+  impl->coarse = voxel_downsample(impl->fine, settings.coarse_voxel);
+  const double normal_radius = settings.normal_radius > 0 ? settings.normal_radius : 2.0 * settings.coarse_voxel;
+  if (impl->coarse.size() >= 3) coarse_normals(impl->coarse, normal_radius, threads);
+
+  if (impl->coarse.size() >= 5) {
+    const auto pc = detail::to_pcl(impl->coarse.points);
+    auto normals = std::make_shared<pcl::PointCloud<pcl::Normal>>();
+    normals->resize(impl->coarse.size());
+    for (std::size_t i = 0; i < impl->coarse.size(); ++i) (*normals)[i].getNormalVector3fMap() = impl->coarse.normals[i];
+    pcl::FPFHEstimationOMP<pcl::PointXYZ, pcl::Normal, Feature> fe(static_cast<unsigned>(threads));
+    fe.setInputCloud(pc);
+    fe.setInputNormals(normals);
+    fe.setSearchMethod(std::make_shared<pcl::search::KdTree<pcl::PointXYZ>>(false));
+    fe.setRadiusSearch(settings.feature_radius);
+    pcl::PointCloud<Feature> features;
+    fe.compute(features);
+    // Keep only points with a valid feature (enough neighbours in the support radius).
+    Cloud kept;
+    for (std::size_t i = 0; i < features.size(); ++i) {
+      const auto& h = features[i].histogram;
+      if (!std::all_of(std::begin(h), std::end(h), [](float v) { return std::isfinite(v); })) continue;
+      kept.points.push_back(impl->coarse.points[i]);
+      kept.normals.push_back(impl->coarse.normals[i]);
+      impl->features->push_back(features[i]);
+    }
+    impl->coarse = std::move(kept);
+  }
+  impl->build_trees();
+  return PreparedCloud(std::move(impl));
+}
+
+namespace {
+
+constexpr std::array<char, 8> kMagic{'F', 'V', 'P', 'R', 'E', 'P', '0', '1'};
+
+template <class T>
+void put(std::ofstream& out, const T& v) {
+  out.write(reinterpret_cast<const char*>(&v), sizeof(T));
+}
+template <class T>
+bool get(std::ifstream& in, T& v) {
+  return static_cast<bool>(in.read(reinterpret_cast<char*>(&v), sizeof(T)));
+}
+void put_points(std::ofstream& out, const std::vector<Eigen::Vector3f>& v) {
+  put(out, static_cast<std::uint64_t>(v.size()));
+  out.write(reinterpret_cast<const char*>(v.data()), static_cast<std::streamsize>(v.size() * sizeof(Eigen::Vector3f)));
+}
+bool get_points(std::ifstream& in, std::vector<Eigen::Vector3f>& v) {
+  std::uint64_t n = 0;
+  if (!get(in, n) || n > (1ULL << 32)) return false;
+  v.resize(n);
+  return static_cast<bool>(in.read(reinterpret_cast<char*>(v.data()), static_cast<std::streamsize>(n * sizeof(Eigen::Vector3f))));
+}
+
+}  // namespace
+
+void PreparedCloud::save(const std::filesystem::path& file) const {
+  const auto tmp = file.string() + ".tmp";
+  {
+    std::ofstream out(tmp, std::ios::binary);
+    if (!out) throw UserError(file.string() + ": cannot write the template cache");
+    out.write(kMagic.data(), kMagic.size());
+    put(out, impl_->settings);
+    put_points(out, impl_->fine.points);
+    put_points(out, impl_->fine.normals);
+    put_points(out, impl_->coarse.points);
+    put_points(out, impl_->coarse.normals);
+    put(out, static_cast<std::uint64_t>(impl_->features->size()));
+    out.write(reinterpret_cast<const char*>(impl_->features->data()),
+              static_cast<std::streamsize>(impl_->features->size() * sizeof(Feature)));
+    if (!out) throw UserError(file.string() + ": writing the template cache failed");
+  }
+  std::filesystem::rename(tmp, file);
+}
+
+std::optional<PreparedCloud> PreparedCloud::load(const std::filesystem::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) return std::nullopt;
+  std::array<char, 8> magic{};
+  if (!in.read(magic.data(), magic.size()) || magic != kMagic) return std::nullopt;
+  auto impl = std::make_shared<Impl>();
+  std::uint64_t nf = 0;
+  if (!get(in, impl->settings) || !get_points(in, impl->fine.points) || !get_points(in, impl->fine.normals) ||
+      !get_points(in, impl->coarse.points) || !get_points(in, impl->coarse.normals) || !get(in, nf) ||
+      nf != impl->coarse.size())
+    return std::nullopt;
+  impl->features->resize(nf);
+  if (!in.read(reinterpret_cast<char*>(impl->features->data()), static_cast<std::streamsize>(nf * sizeof(Feature))))
+    return std::nullopt;
+  impl->build_trees();
+  return PreparedCloud(std::move(impl));
+}
+
+Registration evaluate(const Cloud& templ, const Cloud& scene, const Transform& T_scene_template, double distance) {
+  Registration r;
+  r.T_scene_template = T_scene_template;
+  if (templ.empty() || scene.empty()) return r;
+  const auto tree = detail::make_tree(scene.points);
+  const Eigen::Matrix3f R = T_scene_template.rotation().cast<float>();
+  const Eigen::Vector3f t = T_scene_template.translation().cast<float>();
+  const auto d2max = static_cast<float>(distance * distance);
+  const int threads = detail::thread_count(0);
+  std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
+  std::vector<double> sums(static_cast<std::size_t>(threads), 0.0);
+  detail::parallel_for(templ.size(), threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) {
+      const auto [j, d2] = detail::nearest(*tree, R * templ.points[i] + t);
+      if (j >= 0 && d2 <= d2max) {
+        ++counts[th];
+        sums[th] += d2;
+      }
+    }
+  });
+  for (std::size_t th = 0; th < counts.size(); ++th) {
+    r.inliers += counts[th];
+    r.rmse += sums[th];
+  }
+  r.fitness = static_cast<double>(r.inliers) / static_cast<double>(templ.size());
+  r.rmse = r.inliers > 0 ? std::sqrt(r.rmse / static_cast<double>(r.inliers)) : 0.0;
+  return r;
+}
+
+Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedCloud& scene, const CoarseSettings& settings) {
+  const auto& T = templ.impl();
+  const auto& S = scene.impl();
+  if (T.coarse.size() < 3 || S.coarse.size() < 3)
+    return Error{"vision.too_few_points", "coarse alignment needs at least 3 points with features in the template (has " +
+                                              std::to_string(T.coarse.size()) + ") and the scene (has " +
+                                              std::to_string(S.coarse.size()) + ")"};
+  // Correspondences: each template feature to its nearest scene feature.
+  const std::size_t n = T.coarse.size();
+  std::vector<int> corr(n, -1);
+  const int threads = detail::thread_count(settings.threads);
+  detail::parallel_for(n, threads, [&](std::size_t, std::size_t b, std::size_t e) {
+    pcl::Indices idx(1);
+    std::vector<float> d2(1);
+    for (std::size_t i = b; i < e; ++i)
+      if (S.feature_tree->nearestKSearch((*T.features)[i], 1, idx, d2) == 1) corr[i] = idx[0];
+  });
+  std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> pairs;  // (template, scene)
+  pairs.reserve(n);
+  for (std::size_t i = 0; i < n; ++i)
+    if (corr[i] >= 0) pairs.emplace_back(T.coarse.points[i], S.coarse.points[static_cast<std::size_t>(corr[i])]);
+  if (pairs.size() < 3) return Error{"vision.no_match", "fewer than 3 feature correspondences between template and scene"};
+
+  const double voxel = T.settings.coarse_voxel;
+  const double inlier = settings.inlier_distance > 0 ? settings.inlier_distance : 1.5 * voxel;
+  const auto inlier2 = static_cast<float>(inlier * inlier);
+  const auto min_edge = static_cast<float>(2.0 * voxel);
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : T.coarse.points) centroid += p.cast<double>();
+  centroid /= static_cast<double>(T.coarse.size());
+
+  struct Best {
+    std::size_t count = 0;
+    Eigen::Matrix4f M = Eigen::Matrix4f::Identity();
+  };
+  std::vector<Best> best(static_cast<std::size_t>(threads));
+  std::atomic<std::int64_t> done{0};
+  std::atomic<std::int64_t> limit{settings.max_iterations};
+  std::vector<std::thread> pool;
+  auto worker = [&](std::size_t th) {
+    std::mt19937_64 rng(settings.seed + 7919 * th);
+    std::uniform_int_distribution<std::size_t> pick(0, pairs.size() - 1);
+    Eigen::Matrix3d src;  // double: Eigen's umeyama in float trips GCC 12's -Warray-bounds
+    Eigen::Matrix3d dst;
+    while (done.fetch_add(1) < limit.load()) {
+      std::array<std::size_t, 3> s{pick(rng), pick(rng), pick(rng)};
+      if (s[0] == s[1] || s[0] == s[2] || s[1] == s[2]) continue;
+      bool ok = true;
+      for (int a = 0; a < 3 && ok; ++a) {
+        const int b = (a + 1) % 3;
+        const float lt = (pairs[s[a]].first - pairs[s[b]].first).norm();
+        const float ls = (pairs[s[a]].second - pairs[s[b]].second).norm();
+        if (lt < min_edge || ls < min_edge) ok = false;
+        else if (std::min(lt, ls) / std::max(lt, ls) < settings.edge_similarity) ok = false;
+      }
+      if (!ok) continue;
+      for (int a = 0; a < 3; ++a) {
+        src.col(a) = pairs[s[a]].first.cast<double>();
+        dst.col(a) = pairs[s[a]].second.cast<double>();
+      }
+      const Eigen::Matrix4f M = Eigen::umeyama(src, dst, false).cast<float>();
+      if (!M.allFinite()) continue;
+      if (settings.prior) {
+        Transform Tm = Transform::Identity();
+        Tm.matrix() = M.cast<double>();
+        const Transform delta = settings.prior->T_scene_template.inverse() * Tm;
+        if (rotation_angle_rad(delta) > settings.prior->rotation_tolerance_rad) continue;
+        if ((Tm * centroid - settings.prior->T_scene_template * centroid).norm() > settings.prior->position_tolerance) continue;
+      }
+      const Eigen::Matrix3f R = M.topLeftCorner<3, 3>();
+      const Eigen::Vector3f t = M.topRightCorner<3, 1>();
+      std::size_t count = 0;
+      for (const auto& [pt, ps] : pairs) count += (R * pt + t - ps).squaredNorm() <= inlier2 ? 1 : 0;
+      if (count > best[th].count) {
+        best[th] = {count, M};
+        const auto k = ransac_iterations(settings.probability, static_cast<double>(count) / static_cast<double>(pairs.size()),
+                                         3, settings.max_iterations);
+        std::int64_t cur = limit.load();
+        while (k < cur && !limit.compare_exchange_weak(cur, k)) {
+        }
+      }
+    }
+  };
+  for (std::size_t th = 1; th < static_cast<std::size_t>(threads); ++th) pool.emplace_back(worker, th);
+  worker(0);
+  for (auto& p : pool) p.join();
+  const auto top = std::max_element(best.begin(), best.end(), [](const Best& a, const Best& b) { return a.count < b.count; });
+  if (top->count < 3)
+    return Error{"vision.no_match", settings.prior ? "no feature match within the fixture pose prior"
+                                                   : "no consistent feature match between template and scene"};
+  // Refit on all inlier correspondences (twice, as the inlier set may grow).
+  Eigen::Matrix4f M = top->M;
+  for (int pass = 0; pass < 2; ++pass) {
+    const Eigen::Matrix3f R = M.topLeftCorner<3, 3>();
+    const Eigen::Vector3f t = M.topRightCorner<3, 1>();
+    std::vector<std::size_t> in;
+    for (std::size_t i = 0; i < pairs.size(); ++i)
+      if ((R * pairs[i].first + t - pairs[i].second).squaredNorm() <= inlier2) in.push_back(i);
+    if (in.size() < 3) break;
+    Eigen::Matrix3Xd src(3, in.size());
+    Eigen::Matrix3Xd dst(3, in.size());
+    for (std::size_t k = 0; k < in.size(); ++k) {
+      src.col(static_cast<Eigen::Index>(k)) = pairs[in[k]].first.cast<double>();
+      dst.col(static_cast<Eigen::Index>(k)) = pairs[in[k]].second.cast<double>();
+    }
+    const Eigen::Matrix4f refit = Eigen::umeyama(src, dst, false).cast<float>();
+    if (refit.allFinite()) M = refit;
+  }
+  Transform Tm = Transform::Identity();
+  Tm.matrix() = M.cast<double>();
+  Registration r = evaluate(T.coarse, S.coarse, Tm, inlier);
+  r.iterations = static_cast<int>(std::min<std::int64_t>(done.load(), limit.load()));
+  r.converged = true;
+  return r;
+}
+
+Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, const Transform& initial,
+                            const FineSettings& settings) {
+  const auto& T = templ.impl();
+  if (T.fine.size() < 6 || scene.size() < 6)
+    return Error{"vision.too_few_points", "fine registration needs at least 6 points (template " +
+                                              std::to_string(T.fine.size()) + ", scene " + std::to_string(scene.size()) + ")"};
+  const double voxel = T.settings.coarse_voxel;
+  const double d_max = settings.max_distance > 0 ? settings.max_distance : 2.0 * voxel;
+  // Not tighter than half a coarse voxel: with a tiny distance, correspondences that are
+  // still off by the coarse error are dropped and dense sensor-fixed patterns (LiDAR rings)
+  // pull the pose back towards identity.
+  const double d_min = std::min(d_max, settings.min_distance > 0 ? settings.min_distance
+                                                                  : std::max(3.0 * T.fine_spacing, 0.5 * voxel));
+  int at_min = 0;
+  const int threads = detail::thread_count(settings.threads);
+
+  Transform T_template_scene = initial.inverse();
+  double d = d_max;
+  bool converged = false;
+  int it = 0;
+  using Mat6 = Eigen::Matrix<double, 6, 6>;
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  std::vector<Mat6> Hs(static_cast<std::size_t>(threads), Mat6::Zero());
+  std::vector<Vec6> gs(static_cast<std::size_t>(threads), Vec6::Zero());
+  std::vector<std::size_t> ns(static_cast<std::size_t>(threads), 0);
+  for (; it < settings.max_iterations; ++it) {
+    const Eigen::Matrix3f R = T_template_scene.rotation().cast<float>();
+    const Eigen::Vector3f t = T_template_scene.translation().cast<float>();
+    const auto d2max = static_cast<float>(d * d);
+    // While the correspondence distance is still shrinking a subset of the scene is enough;
+    // the final iterations use every point (full resolution).
+    const std::size_t stride = d > d_min ? std::max<std::size_t>(1, scene.size() / settings.coarse_points) : 1;
+    detail::parallel_for(scene.size() / stride, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+      Mat6 H = Mat6::Zero();
+      Vec6 g = Vec6::Zero();
+      std::size_t cnt = 0;
+      for (std::size_t k = b; k < e; ++k) {
+        const std::size_t i = k * stride;
+        const Eigen::Vector3f q = R * scene.points[i] + t;
+        const auto [j, d2] = detail::nearest(*T.fine_tree, q);
+        if (j < 0 || d2 > d2max) continue;
+        const Eigen::Vector3f& m = T.fine.points[static_cast<std::size_t>(j)];
+        const Eigen::Vector3f& nm = T.fine.normals[static_cast<std::size_t>(j)];
+        const double r = nm.dot(q - m);
+        Vec6 J;
+        J.head<3>() = q.cross(nm).cast<double>();
+        J.tail<3>() = nm.cast<double>();
+        H.noalias() += J * J.transpose();
+        g.noalias() += J * r;
+        ++cnt;
+      }
+      Hs[th] = H;
+      gs[th] = g;
+      ns[th] = cnt;
+    });
+    Mat6 H = Mat6::Zero();
+    Vec6 g = Vec6::Zero();
+    std::size_t cnt = 0;
+    for (std::size_t th = 0; th < Hs.size(); ++th) {
+      H += Hs[th];
+      g += gs[th];
+      cnt += ns[th];
+      Hs[th].setZero();
+      gs[th].setZero();
+      ns[th] = 0;
+    }
+    if (cnt < 6)
+      return Error{"vision.too_few_points", "fine registration: only " + std::to_string(cnt) +
+                                                " scene points near the template surface (is the part in the scan?)"};
+    const Vec6 x = H.ldlt().solve(-g);
+    if (!x.allFinite()) break;
+    Transform step = Transform::Identity();
+    const double angle = x.head<3>().norm();
+    if (angle > 0) step.linear() = Eigen::AngleAxisd(angle, x.head<3>() / angle).toRotationMatrix();
+    step.translation() = x.tail<3>();
+    T_template_scene = step * T_template_scene;
+    const bool small = x.tail<3>().norm() < settings.convergence_translation * voxel && angle < settings.convergence_rotation_rad;
+    if (d <= d_min) ++at_min;
+    if ((small && d <= d_min) || at_min >= 8) {
+      converged = small;
+      ++it;
+      break;
+    }
+    if (small || it >= 3) d = std::max(d_min, d * 0.7);
+  }
+  Registration r = evaluate(T.fine, scene, T_template_scene.inverse(),
+                            settings.fitness_distance > 0 ? settings.fitness_distance : d_min);
+  r.iterations = it;
+  r.converged = converged;
+  return r;
+}
+
+Result<Registration> locate(const Cloud& templ, const Cloud& scene, const LocateSettings& settings) {
+  if (templ.size() < 10) return Error{"vision.too_few_points", "the template has fewer than 10 valid points"};
+  if (scene.size() < 10) return Error{"vision.too_few_points", "the scene has fewer than 10 valid points"};
+  // Scale-free voxel: about `coarse_points` template points, never finer than the data.
+  double voxel = voxel_for_count(templ, settings.coarse_points);
+  PrepareSettings ps;
+  {
+    // Median nearest-neighbour spacing of the template, from a sample.
+    const auto tree = detail::make_tree(templ.points);
+    std::vector<float> d;
+    pcl::Indices idx(2);
+    std::vector<float> d2(2);
+    const std::size_t step = std::max<std::size_t>(1, templ.size() / 1000);
+    for (std::size_t i = 0; i < templ.size(); i += step) {
+      pcl::PointXYZ q;
+      q.getVector3fMap() = templ.points[i];
+      if (tree->nearestKSearch(q, 2, idx, d2) == 2) d.push_back(std::sqrt(d2[1]));
+    }
+    std::sort(d.begin(), d.end());
+    const double spacing = d.empty() ? 0.0 : d[d.size() / 2];
+    voxel = std::max(voxel, 1.5 * spacing);
+  }
+  if (!(voxel > 0)) return Error{"vision.too_few_points", "the template has no extent (all points coincide)"};
+  ps.coarse_voxel = voxel;
+  ps.feature_radius = settings.feature_radius_voxels * voxel;
+  // Uniform density for ICP: dense patches (LiDAR rings near the sensor, sensor-fixed
+  // structure) would otherwise dominate the objective and pull towards identity.
+  const double icp_voxel = voxel / 3.0;
+  const auto t_prep = PreparedCloud::prepare(voxel_downsample(templ, icp_voxel), ps);
+  FineSettings fine_settings = settings.fine;
+  if (fine_settings.fitness_distance <= 0) fine_settings.fitness_distance = voxel;
+  // The scene needs no fine normals: ICP uses the template's.
+  const Cloud scene_u = voxel_downsample(scene, icp_voxel);
+  Cloud scene_n = scene_u;
+  estimate_normals(scene_n, 8);  // oriented towards the sensor (origin), as for a scan
+  const auto s_prep = PreparedCloud::prepare(scene_n, ps);
+
+  std::vector<Transform> candidates{Transform::Identity()};
+  auto coarse = coarse_align(t_prep, s_prep, settings.coarse);
+  if (coarse) candidates.insert(candidates.begin(), coarse->T_scene_template);
+
+  std::optional<Registration> best;
+  const Bounds tb = bounds(templ);
+  for (const auto& c : candidates) {
+    // Only scene points near the placed template take part in ICP.
+    const Eigen::Vector3d margin = Eigen::Vector3d::Constant(3.0 * voxel);
+    const Cloud near = crop_box(scene_u, c.inverse(), tb.min.cast<double>() - margin, tb.max.cast<double>() + margin);
+    auto fine = refine(t_prep, near.size() >= 6 ? near : scene_u, c, fine_settings);
+    if (!fine) continue;
+    if (!best || fine->fitness > best->fitness) best = *fine;
+  }
+  if (!best) return coarse ? Error{"vision.no_match", "fine registration failed for every candidate pose"} : coarse.error();
+  if (best->fitness < settings.min_fitness) {
+    return Error{"vision.no_match", "the template was not found in the scene: best fitness " + std::to_string(best->fitness) +
+                                        " is below " + std::to_string(settings.min_fitness) +
+                                        " (is the object in the scan, and are both clouds in the same unit?)"};
+  }
+  return *best;
+}
+
+}  // namespace fettle::vision
