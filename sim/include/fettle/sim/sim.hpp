@@ -96,6 +96,10 @@ class Casting {
   [[nodiscard]] double distance_to_surface_mm(const Vec3& p_part) const;
   /// Distance of a part-frame point to the golden surface.
   [[nodiscard]] double distance_to_golden_mm(const Vec3& p_part) const;
+  /// Top of the golden body at (x, y), part frame (NaN off the body).
+  [[nodiscard]] double golden_top_z_mm(double x_mm, double y_mm) const;
+  /// Removes every bit of flash and riser exactly (an oracle "perfect grind", no tool).
+  void remove_all_material();
   /// Signed distance to the golden body solid (negative inside), part frame.
   [[nodiscard]] double golden_sdf_mm(const Vec3& p_part) const;
 

@@ -1,0 +1,272 @@
+// The grinding process: executed path = commanded + noise + bias, interpolated, the tool's
+// swept volume removes material (dexels) and cuts the body from the top; cuts into the
+// golden body deeper than the threshold are gouges.
+#include <algorithm>
+#include <cmath>
+
+#include "casting_model.hpp"
+#include "fettle/core/error.hpp"
+
+namespace fettle::sim {
+namespace {
+
+struct ToolSolid {
+  config::ToolShape shape;
+  double radius = 1, length = 1, tan_half = 1;
+};
+
+/// Interval [lo, hi] of z where the vertical line through (x, y) is inside the tool
+/// (tip/centre c, axis a toward the spindle). False if the line misses.
+bool line_interval(const ToolSolid& tool, const Vec3& c, const Vec3& a, double x, double y, double& lo, double& hi) {
+  const Vec3 q0(x - c.x(), y - c.y(), -c.z());  // q(z) = q0 + z ez
+  if (tool.shape == config::ToolShape::ball) {
+    const double B = q0.z(), C = q0.squaredNorm() - tool.radius * tool.radius;
+    const double disc = B * B - C;
+    if (disc < 0) return false;
+    const double s = std::sqrt(disc);
+    lo = -B - s, hi = -B + s;
+    return true;
+  }
+  const double s0 = a.dot(q0), az = a.z();
+  // axial range s in [0, L]
+  double zlo = -1e300, zhi = 1e300;
+  if (std::abs(az) < 1e-12) {
+    if (s0 < 0 || s0 > tool.length) return false;
+  } else {
+    double z1 = (0 - s0) / az, z2 = (tool.length - s0) / az;
+    if (z1 > z2) std::swap(z1, z2);
+    zlo = z1, zhi = z2;
+  }
+  // radial: rho^2(z) = A z^2 + B z + C0
+  const double A = 1 - az * az, B = 2 * (q0.z() - s0 * az), C0 = q0.squaredNorm() - s0 * s0;
+  auto quad_le = [&](double qa, double qb, double qc, double& l, double& h) -> int {
+    // solutions of qa z^2 + qb z + qc <= 0: 0 none, 1 interval [l, h], 2 complement (-inf, l] U [h, inf), 3 all
+    if (std::abs(qa) < 1e-12) {
+      if (std::abs(qb) < 1e-12) return qc <= 0 ? 3 : 0;
+      const double r = -qc / qb;
+      if (qb > 0) l = -1e300, h = r;
+      else l = r, h = 1e300;
+      return 1;
+    }
+    const double disc = qb * qb - 4 * qa * qc;
+    if (disc < 0) return qa > 0 ? 0 : 3;
+    const double sq = std::sqrt(disc);
+    double r1 = (-qb - sq) / (2 * qa), r2 = (-qb + sq) / (2 * qa);
+    if (r1 > r2) std::swap(r1, r2);
+    l = r1, h = r2;
+    return qa > 0 ? 1 : 2;
+  };
+  double l = 0, h = 0;
+  const int cyl = quad_le(A, B, C0 - tool.radius * tool.radius, l, h);
+  if (cyl == 0) return false;
+  if (cyl == 1) zlo = std::max(zlo, l), zhi = std::min(zhi, h);
+  if (zlo > zhi) return false;
+  if (tool.shape == config::ToolShape::cone) {
+    const double t2 = tool.tan_half * tool.tan_half;
+    // rho^2 - t2 s^2 <= 0 with s = s0 + az z
+    const int k = quad_le(A - t2 * az * az, B - 2 * t2 * s0 * az, C0 - t2 * s0 * s0, l, h);
+    if (k == 0) return false;
+    if (k == 1) zlo = std::max(zlo, l), zhi = std::min(zhi, h);
+    if (k == 2) {
+      // two pieces; keep the one on the tool's nappe (inside [zlo, zhi], which has s >= 0)
+      const double a1 = std::max(zlo, -1e300), b1 = std::min(zhi, l);
+      const double a2 = std::max(zlo, h), b2 = std::min(zhi, 1e300);
+      if (b1 - a1 >= b2 - a2) zlo = a1, zhi = b1;
+      else zlo = a2, zhi = b2;
+    }
+    if (zlo > zhi) return false;
+  }
+  lo = zlo, hi = zhi;
+  return true;
+}
+
+/// Points on the tool's surface (for the gouge depth), tool frame: (radius, axial) samples.
+std::vector<Vec3> tool_samples(const ToolSolid& t) {
+  std::vector<Vec3> s;
+  const int n = 24;
+  auto ring = [&](double r, double z) {
+    if (r <= 1e-9) {
+      s.emplace_back(0, 0, z);
+      return;
+    }
+    for (int k = 0; k < n; ++k) {
+      const double a = 2 * 3.14159265358979323846 * k / n;
+      s.emplace_back(r * std::cos(a), r * std::sin(a), z);
+    }
+  };
+  if (t.shape == config::ToolShape::ball) return s;  // exact: centre distance
+  if (t.shape == config::ToolShape::cylinder) {
+    for (double f : {0.0, 0.35, 0.7, 1.0}) ring(f * t.radius, 0.0);
+    for (double f : {0.25, 0.5, 1.0}) ring(t.radius, f * t.length);
+  } else {
+    for (double f : {0.0, 0.25, 0.5, 0.75, 1.0}) {
+      const double z = f * t.length;
+      ring(std::min(t.radius, z * t.tan_half), z);
+    }
+  }
+  return s;
+}
+
+}  // namespace
+
+double GrindResult::removed_mm3() const {
+  double b = 0, a = 0;
+  for (const auto& r : before) b += r.volume_mm3;
+  for (const auto& r : after) a += r.volume_mm3;
+  return b - a;
+}
+
+double GrindResult::max_gouge_depth_mm() const {
+  double d = 0;
+  for (const auto& g : gouges) d = std::max(d, g.depth_mm);
+  return d;
+}
+
+const config::Tool& find_tool(const config::PartRecipe& recipe, const std::string& name) {
+  for (const auto& t : recipe.tools)
+    if (t.name == name) return t;
+  std::string names;
+  for (const auto& t : recipe.tools) names += (names.empty() ? "" : ", ") + t.name;
+  throw UserError(recipe.source.string() + ": no tool named \"" + name + "\" (the recipe has: " + names + ")");
+}
+
+Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const GrindOptions& opt,
+                          const CellLimits& limits, const Progress& progress) {
+  if (auto s = validate_trajectory(trajectory, limits); !s) return s.error();
+  if (!(opt.interpolation_mm > 0) || !std::isfinite(opt.path_noise_mm) || opt.path_noise_mm < 0 ||
+      !opt.path_bias_mm.allFinite())
+    return Error{"sim.grind_options", "interpolation must be > 0 and noise/bias finite"};
+  auto& m = casting.model();
+  GrindResult res;
+  res.before = m.truth();
+
+  ToolSolid tool;
+  tool.shape = opt.tool.shape;
+  tool.radius = 0.5 * opt.tool.diameter_mm;
+  tool.length = opt.tool.length_mm;
+  tool.tan_half = std::tan(deg_to_rad(std::max(1.0, opt.tool.cone_angle_deg)));
+  const auto samples = tool_samples(tool);
+  const double reach = tool.shape == config::ToolShape::ball ? tool.radius : std::hypot(tool.radius, tool.length);
+
+  // Interpolated commanded poses.
+  struct P {
+    Vec3 x;
+    Quat q;
+    bool cut;
+  };
+  std::vector<P> poses;
+  const auto& pts = trajectory.points;
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const auto& b = pts[i].T_base_tool;
+    const bool cut = !opt.only_when_spindle_on || pts[i].spindle_rpm > 0;
+    if (i == 0) {
+      poses.push_back({b.position_mm, b.orientation.normalized(), cut});
+      continue;
+    }
+    const auto& a = pts[i - 1].T_base_tool;
+    const double dist = (b.position_mm - a.position_mm).norm();
+    const double ang = a.orientation.normalized().angularDistance(b.orientation.normalized());
+    const int n = std::max(1, static_cast<int>(std::ceil(std::max(dist, ang * reach) / opt.interpolation_mm)));
+    for (int k = 1; k <= n; ++k) {
+      const double f = static_cast<double>(k) / n;
+      poses.push_back({a.position_mm + f * (b.position_mm - a.position_mm),
+                       a.orientation.normalized().slerp(f, b.orientation.normalized()), cut});
+    }
+  }
+  res.poses = poses.size();
+
+  Rng rng(opt.noise_seed, 0x6121D);
+  const Transform T_part_base = m.T_base_part.inverse();
+  int bi0 = m.body.nx, bj0 = m.body.ny, bi1 = -1, bj1 = -1;  // dirty body cells
+  bool in_gouge = false;
+  Gouge current;
+  const std::size_t report_every = std::max<std::size_t>(1, poses.size() / 20);
+  for (std::size_t pi = 0; pi < poses.size(); ++pi) {
+    const auto& p = poses[pi];
+    const Vec3 noise(rng.gaussian(), rng.gaussian(), rng.gaussian());
+    const Vec3 x_base = p.x + opt.path_noise_mm * noise + opt.path_bias_mm;
+    const Vec3 c = T_part_base * x_base;
+    const Vec3 a = (T_part_base.linear() * (p.q * Vec3::UnitZ())).normalized();
+    const Eigen::Matrix3d R_part_tool = T_part_base.linear() * p.q.toRotationMatrix();
+
+    // Gouge: deepest penetration of the tool surface into the golden body.
+    double depth = 0;
+    Vec3 deepest = c;
+    if (tool.shape == config::ToolShape::ball) {
+      depth = tool.radius - m.golden_sdf(c);
+      deepest = c - tool.radius * Vec3::UnitZ();
+    } else {
+      for (const auto& s : samples) {
+        const Vec3 q = c + R_part_tool * s;
+        const double d = -m.golden_sdf(q);
+        if (d > depth) depth = d, deepest = q;
+      }
+    }
+    if (depth > opt.gouge_threshold_mm) {
+      if (!in_gouge || depth > current.depth_mm) current = Gouge{deepest, depth, pi};
+      in_gouge = true;
+    } else if (in_gouge) {
+      res.gouges.push_back(current);
+      in_gouge = false;
+    }
+
+    if (p.cut) {
+      // Tool AABB in the part frame.
+      const Vec3 tip2 = c + a * (tool.shape == config::ToolShape::ball ? 0.0 : tool.length);
+      const double xlo = std::min(c.x(), tip2.x()) - tool.radius, xhi = std::max(c.x(), tip2.x()) + tool.radius;
+      const double ylo = std::min(c.y(), tip2.y()) - tool.radius, yhi = std::max(c.y(), tip2.y()) + tool.radius;
+      const double zlo = std::min(c.z(), tip2.z()) - tool.radius;
+      for (auto& mat : m.materials) {
+        const int i0 = std::max(0, static_cast<int>(std::floor((xlo - mat.x0) / mat.pitch)));
+        const int i1 = std::min(mat.nx - 1, static_cast<int>(std::floor((xhi - mat.x0) / mat.pitch)));
+        const int j0 = std::max(0, static_cast<int>(std::floor((ylo - mat.y0) / mat.pitch)));
+        const int j1 = std::min(mat.ny - 1, static_cast<int>(std::floor((yhi - mat.y0) / mat.pitch)));
+        for (int j = j0; j <= j1; ++j)
+          for (int i = i0; i <= i1; ++i) {
+            const auto k = mat.index(i, j);
+            float& z0 = mat.z0[k];
+            float& z1 = mat.z1[k];
+            if (z1 <= z0 || z1 < zlo) continue;
+            double lo = 0, hi = 0;
+            if (!line_interval(tool, c, a, mat.cx(i), mat.cy(j), lo, hi)) continue;
+            if (hi <= z0 || lo >= z1) continue;
+            if (lo <= z0 && hi >= z1) {
+              z1 = z0;
+            } else if (lo <= z0) {
+              z0 = static_cast<float>(hi);
+            } else {
+              // cut from the top, or through the middle: the sliver above breaks off with it
+              z1 = static_cast<float>(lo);
+            }
+          }
+      }
+      // The body is cut from the top (what a scanner above would see).
+      auto& B = m.body;
+      const int i0 = std::max(0, static_cast<int>(std::floor((xlo - B.x0) / B.pitch)));
+      const int i1 = std::min(B.nx - 1, static_cast<int>(std::floor((xhi - B.x0) / B.pitch)));
+      const int j0 = std::max(0, static_cast<int>(std::floor((ylo - B.y0) / B.pitch)));
+      const int j1 = std::min(B.ny - 1, static_cast<int>(std::floor((yhi - B.y0) / B.pitch)));
+      for (int j = j0; j <= j1; ++j)
+        for (int i = i0; i <= i1; ++i) {
+          float& h = B.at(i, j);
+          if (h <= kNoPart || h < zlo) continue;
+          double lo = 0, hi = 0;
+          if (!line_interval(tool, c, a, B.cx(i), B.cy(j), lo, hi)) continue;
+          if (lo < h && hi >= h) {
+            h = static_cast<float>(std::max(0.0, lo));
+            bi0 = std::min(bi0, i), bj0 = std::min(bj0, j), bi1 = std::max(bi1, i), bj1 = std::max(bj1, j);
+          }
+        }
+      // material changes the surface too
+      bi0 = std::min(bi0, i0), bj0 = std::min(bj0, j0), bi1 = std::max(bi1, i1), bj1 = std::max(bj1, j1);
+    }
+    if (progress && (pi % report_every == 0 || pi + 1 == poses.size())) progress(pi + 1, poses.size(), "grinding");
+  }
+  if (in_gouge) res.gouges.push_back(current);
+  if (bi1 >= 0) m.rebuild_surface(bi0 - 1, bj0 - 1, bi1 + 2, bj1 + 2);
+  for (auto& g : res.gouges) m.gouges.push_back(g);
+  res.after = m.truth();
+  return res;
+}
+
+}  // namespace fettle::sim

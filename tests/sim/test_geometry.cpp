@@ -1,0 +1,153 @@
+// The simulated casting's geometry: ground-truth volumes against analytic values, the
+// golden template, and part files with impossible geometry rejected with file:line.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <unistd.h>
+
+#include "fettle/config/diagnostics.hpp"
+#include "sim_test_util.hpp"
+
+using namespace fettle::sim;  // NOLINT
+using ::testing::HasSubstr;
+using sim_test::pi;
+
+namespace {
+
+const RegionTruth& region(const std::vector<RegionTruth>& r, const std::string& name) {
+  for (const auto& x : r)
+    if (x.name == name) return x;
+  throw std::runtime_error("no region " + name);
+}
+
+TEST(SimGeometry, RiserVolumeMatchesTheCylinderWithinTwoPercent) {
+  const auto recipe = sim_test::pump_body();
+  const auto c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const auto& f = recipe.geometry.risers.at(0);
+  const double d = 0.5 * (f.diameter_mm.min + f.diameter_mm.max), h = 0.5 * (f.height_mm.min + f.height_mm.max);
+  // A tilted plane top: the mean height over the disc is the centre height.
+  const double expected = pi() * d * d / 4 * h;
+  const auto& r = region(c.material(), "riser");
+  EXPECT_NEAR(r.volume_mm3, expected, 0.02 * expected);
+  const double tilt = 0.5 * (f.top_tilt_deg.min + f.top_tilt_deg.max) * pi() / 180;
+  EXPECT_NEAR(r.max_height_mm, h + std::tan(tilt) * d / 2, 0.1);
+}
+
+TEST(SimGeometry, RingFlashVolumeMatchesTheAnnulusWithinTwoPercent) {
+  const auto recipe = sim_test::pump_body();
+  const auto c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const auto& f = recipe.geometry.ring_flashes.at(0);
+  const double R = f.cylinder.radius_mm, e = 0.5 * (f.extent_mm.min + f.extent_mm.max);
+  const double t = 0.5 * (f.thickness_mm.min + f.thickness_mm.max);
+  const double expected = pi() * ((R + e) * (R + e) - R * R) * t;
+  const auto& r = region(c.material(), f.region);
+  EXPECT_NEAR(r.volume_mm3, expected, 0.02 * expected);
+  EXPECT_NEAR(r.max_height_mm, e, 0.1);
+}
+
+TEST(SimGeometry, StraightFlashVolumeMatchesTheWallWithinTwoPercent) {
+  const auto recipe = sim_test::pump_body();
+  const auto c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const auto& f = recipe.geometry.straight_flashes.at(0);
+  const double L = 0.5 * (f.length_mm.min + f.length_mm.max), h = 0.5 * (f.height_mm.min + f.height_mm.max);
+  const double t = 0.5 * (f.thickness_mm.min + f.thickness_mm.max);
+  const auto& r = region(c.material(), f.region);
+  EXPECT_NEAR(r.volume_mm3, L * h * t, 0.02 * L * h * t);
+}
+
+TEST(SimGeometry, CastingsDifferBySeedWithinTheConfiguredRanges) {
+  const auto recipe = sim_test::pump_body();
+  const auto a = Casting::make(recipe, 1), b = Casting::make(recipe, 2);
+  EXPECT_NE(region(a.material(), "riser").volume_mm3, region(b.material(), "riser").volume_mm3);
+  const auto& tol = recipe.geometry.variation;
+  for (const auto* c : {&a, &b}) {
+    const auto& T = c->T_base_part();
+    EXPECT_LE(std::abs(T.translation().x()), tol.placement_tolerance_mm + 1e-9);
+    EXPECT_LE(std::abs(T.translation().y()), tol.placement_tolerance_mm + 1e-9);
+    EXPECT_LE(fettle::rad_to_deg(fettle::rotation_angle_rad(T)), tol.placement_tolerance_deg + 1e-9);
+    const auto& f = recipe.geometry.risers.at(0);
+    const double hmax = region(c->material(), "riser").max_height_mm;
+    EXPECT_GE(hmax, f.height_mm.min - 0.01);
+  }
+}
+
+TEST(SimGeometry, GoldenTemplateHasNoMaterialAndItsSamplesLieOnItsSurface) {
+  const auto recipe = sim_test::pump_body();
+  const auto g = Casting::golden(recipe, 1);
+  for (const auto& r : g.material()) EXPECT_EQ(r.volume_mm3, 0.0) << r.name;
+  const auto pts = g.sample_golden_surface(2.0);
+  ASSERT_GT(pts.size(), 5000u);
+  std::size_t walls = 0;
+  for (std::size_t i = 0; i < pts.size(); i += 37) {
+    EXPECT_LT(g.distance_to_golden_mm(pts[i].position_mm.cast<double>()), 0.11);
+    EXPECT_NEAR(pts[i].normal.norm(), 1.0f, 1e-4f);
+    walls += std::abs(pts[i].normal.z()) < 0.1f ? 1 : 0;
+  }
+  EXPECT_GT(walls, 0u);
+  // the flange top is at its configured height, and a point above it is that far away
+  const auto& fl = recipe.geometry.ring_flashes.at(0).cylinder;
+  EXPECT_NEAR(g.golden_sdf_mm(fettle::Vec3(fl.center_mm[0], fl.center_mm[1], fl.top_z_mm + 2.0)), 2.0, 1e-9);
+  EXPECT_NEAR(g.distance_to_golden_mm(fettle::Vec3(fl.center_mm[0], fl.center_mm[1], fl.top_z_mm + 2.0)), 2.0, 1e-3);
+}
+
+class BadPartFile : public ::testing::Test {
+ protected:
+  std::filesystem::path write(const std::string& from, const std::string& to) {
+    std::ifstream in(sim_test::kPumpBody);
+    std::stringstream s;
+    s << in.rdbuf();
+    std::string text = s.str();
+    const auto at = text.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    text.replace(at, from.size(), to);
+    path_ = std::filesystem::temp_directory_path() / ("fettle-sim-bad-" + std::to_string(::getpid()) + ".toml");
+    std::ofstream(path_) << text;
+    return path_;
+  }
+  void TearDown() override { std::filesystem::remove(path_); }
+  std::filesystem::path path_;
+};
+
+TEST_F(BadPartFile, NegativeRadiusIsRejectedWithFileAndLine) {
+  const auto p = write("radius_mm = 45.0", "radius_mm = -45.0");
+  try {
+    (void)fettle::config::load_part(p);
+    FAIL() << "accepted a negative radius";
+  } catch (const fettle::config::ConfigError& e) {
+    EXPECT_THAT(e.what(), HasSubstr(p.string() + ":"));
+    EXPECT_THAT(e.what(), HasSubstr("radius_mm"));
+    ASSERT_FALSE(e.diagnostics().empty());
+    EXPECT_GT(e.diagnostics().front().line, 0);
+  }
+}
+
+TEST_F(BadPartFile, RiserOffTheBodyIsRejectedWithFileAndLine) {
+  const auto p = write("center_mm = [-82.0, 48.0]", "center_mm = [-382.0, 48.0]");
+  try {
+    (void)fettle::config::load_part(p);
+    FAIL() << "accepted a riser off the body";
+  } catch (const fettle::config::ConfigError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("off the body"));
+    EXPECT_GT(e.diagnostics().front().line, 0);
+  }
+}
+
+TEST_F(BadPartFile, RegionRoiOffTheBodyIsRejectedWithFileAndLine) {
+  const auto p = write("roi_center_mm = [82.0, -48.0, 47.0]", "roi_center_mm = [482.0, -48.0, 47.0]");
+  try {
+    (void)fettle::config::load_part(p);
+    FAIL() << "accepted a region off the body";
+  } catch (const fettle::config::ConfigError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("regions[2].roi_center_mm"));
+    EXPECT_GT(e.diagnostics().front().line, 0);
+  }
+}
+
+TEST_F(BadPartFile, FeatureNamingAnUnknownRegionIsRejected) {
+  const auto p = write("region = \"riser\"", "region = \"rizer\"");
+  EXPECT_THROW((void)fettle::config::load_part(p), fettle::config::ConfigError);
+}
+
+}  // namespace
