@@ -1,0 +1,198 @@
+// Grinding and evaluation: a known tool sweep removes what it should, cutting into the
+// body is a gouge, bad trajectories are rejected untouched, evaluation counts.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <unistd.h>
+
+#include "fettle/core/error.hpp"
+#include "sim_test_util.hpp"
+
+using namespace fettle::sim;  // NOLINT
+using ::testing::HasSubstr;
+using sim_test::pi;
+
+namespace {
+
+double riser_volume(const Casting& c) {
+  for (const auto& r : c.material())
+    if (r.name == "riser") return r.volume_mm3;
+  return -1;
+}
+
+/// A vertical cylinder tool (axis +z, i.e. pointing down at the part) held at part-frame point p.
+fettle::Trajectory plunge(const Casting& c, const fettle::Vec3& p_part) {
+  fettle::Trajectory t;
+  fettle::TrajectoryPoint q;
+  q.T_base_tool.position_mm = c.T_base_part() * p_part;
+  q.T_base_tool.orientation = fettle::Quat(c.T_base_part().linear());
+  q.speed_mm_s = 10;
+  q.spindle_rpm = 8000;
+  t.points = {q, q};
+  return t;
+}
+
+GrindOptions disc() {
+  GrindOptions o;
+  o.tool.shape = fettle::config::ToolShape::cylinder;
+  o.tool.diameter_mm = 50.0;
+  o.tool.length_mm = 30.0;
+  o.path_noise_mm = 0.0;
+  return o;
+}
+
+TEST(SimGrind, CylinderAboveTheFaceLeavesExactlyTheStubBelowIt) {
+  const auto recipe = sim_test::pump_body();
+  Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const auto& f = recipe.geometry.risers.at(0);
+  const double d = 0.5 * (f.diameter_mm.min + f.diameter_mm.max);
+  const double face = c.golden_top_z_mm(f.center_mm[0], f.center_mm[1]);
+  const double before = riser_volume(c);
+  auto res = grind(c, plunge(c, {f.center_mm[0], f.center_mm[1], face + 2.0}), disc());
+  ASSERT_TRUE(res.ok()) << res.error().message;
+  const double expected = pi() * d * d / 4 * 2.0;
+  EXPECT_NEAR(riser_volume(c), expected, 0.02 * expected);
+  EXPECT_NEAR(res->removed_mm3(), before - expected, 0.02 * before);
+  EXPECT_TRUE(res->gouges.empty());
+  EXPECT_NEAR(c.surface_z_mm(f.center_mm[0], f.center_mm[1]), face + 2.0, 0.02);
+}
+
+TEST(SimGrind, BallSweepAlongTheStraightFlashRemovesItAndRecordsAGougeWhenTooLow) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.straight_flashes.at(0);
+  const double L = 0.5 * (f.length_mm.min + f.length_mm.max);
+  for (double clearance : {0.0, -0.3}) {
+    Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+    const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
+    GrindOptions o;
+    o.tool = find_tool(recipe, "ball-12");
+    o.path_noise_mm = 0.0;
+    fettle::Trajectory t;
+    for (double s : {-8.0, L + 8.0}) {
+      fettle::TrajectoryPoint q;
+      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + 6.0 + clearance);
+      q.speed_mm_s = 20;
+      q.spindle_rpm = 9000;
+      t.points.push_back(q);
+    }
+    auto res = grind(c, t, o);
+    ASSERT_TRUE(res.ok()) << res.error().message;
+    double left = 0;
+    for (const auto& r : res->after)
+      if (r.name == f.region) left = r.volume_mm3;
+    EXPECT_LT(left, 0.01 * res->removed_mm3()) << "clearance " << clearance;
+    if (clearance == 0.0) {
+      EXPECT_TRUE(res->gouges.empty());
+    } else {
+      ASSERT_EQ(res->gouges.size(), 1u);
+      EXPECT_NEAR(res->gouges[0].depth_mm, 0.3, 0.01);
+      EXPECT_NEAR(res->gouges[0].position_mm.z(), face - 0.3, 0.01);
+      EXPECT_NEAR(c.surface_z_mm(f.start_mm[0] + L / 2, f.start_mm[1]), face - 0.3, 0.02);
+    }
+  }
+}
+
+TEST(SimGrind, PathNoiseIsSeededAndDeterministic) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.risers.at(0);
+  auto run = [&](std::uint64_t seed) {
+    Casting c = Casting::make(recipe, 3);
+    const double face = c.golden_top_z_mm(f.center_mm[0], f.center_mm[1]);
+    auto o = disc();
+    o.path_noise_mm = 0.05;
+    o.noise_seed = seed;
+    auto t = plunge(c, {f.center_mm[0] - 5, f.center_mm[1], face + 0.02});
+    t.points[1].T_base_tool.position_mm += fettle::Vec3(10, 0, 0);
+    return grind(c, t, o).value();
+  };
+  const auto a = run(1), b = run(1), d = run(2);
+  EXPECT_EQ(a.removed_mm3(), b.removed_mm3());
+  EXPECT_EQ(a.gouges.size(), b.gouges.size());
+  EXPECT_NE(a.max_gouge_depth_mm(), d.max_gouge_depth_mm());
+}
+
+TEST(SimGrind, TrajectoriesWithNaNOrOutsideTheCellAreRejectedAndNotExecuted) {
+  const auto recipe = sim_test::pump_body();
+  Casting c = Casting::make(recipe, 1);
+  const double before = riser_volume(c);
+  const auto& f = recipe.geometry.risers.at(0);
+  auto t = plunge(c, {f.center_mm[0], f.center_mm[1], 40.0});
+  t.points[1].T_base_tool.position_mm.z() = std::nan("");
+  auto r = grind(c, t, disc());
+  ASSERT_FALSE(r.ok());
+  EXPECT_THAT(r.error().message, HasSubstr("point 1"));
+  EXPECT_THAT(r.error().message, HasSubstr("NaN"));
+  t = plunge(c, {f.center_mm[0], f.center_mm[1], 40.0});
+  t.points[0].T_base_tool.position_mm.x() = 5000.0;
+  r = grind(c, t, disc());
+  ASSERT_FALSE(r.ok());
+  EXPECT_THAT(r.error().message, HasSubstr("outside the cell"));
+  EXPECT_EQ(riser_volume(c), before);
+}
+
+TEST(SimGrind, TrajectoryFilesRoundTripAndBadFilesNameTheLine) {
+  const auto dir = std::filesystem::temp_directory_path() / ("fettle-sim-traj-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const auto recipe = sim_test::pump_body();
+  Casting c = Casting::make(recipe, 1);
+  auto t = plunge(c, {0, 0, 80});
+  t.segment_regions = {"riser"};
+  ASSERT_TRUE(write_trajectory_json(dir / "t.json", t).ok());
+  const auto back = read_trajectory(dir / "t.json");
+  ASSERT_EQ(back.points.size(), 2u);
+  EXPECT_EQ(back.segment_regions, t.segment_regions);
+  EXPECT_TRUE(back.points[1].T_base_tool.position_mm.isApprox(t.points[1].T_base_tool.position_mm));
+  std::ofstream(dir / "t.csv") << "x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment\n"
+                                  "0,0,100,1,0,0,0,10,8000,0\n"
+                                  "0,0,nan,1,0,0,0,10,8000,0\n";
+  const auto csv = read_trajectory(dir / "t.csv");
+  ASSERT_EQ(csv.points.size(), 2u);
+  EXPECT_FALSE(validate_trajectory(csv, CellLimits{}).ok());
+  std::ofstream(dir / "bad.csv") << "x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment\n"
+                                    "0,0,100,1,0,0,0,10,8000,0\n"
+                                    "0,0,abc,1,0,0,0,10,8000,0\n";
+  try {
+    (void)read_trajectory(dir / "bad.csv");
+    FAIL() << "accepted a non-number";
+  } catch (const fettle::UserError& e) {
+    EXPECT_THAT(e.what(), HasSubstr("bad.csv:3"));
+  }
+  std::filesystem::remove_all(dir);
+}
+
+TEST(SimEvaluate, CountsPointsOverEachThresholdInsideTheRoiOnly) {
+  fettle::config::Region r;
+  r.name = "box";
+  r.roi_center_mm = {0, 0, 0};
+  r.roi_size_mm = {10, 10, 10};
+  const std::vector<Eigen::Vector3f> pts{{0, 0, 0.1f}, {0, 0, 0.35f}, {0, 0, 0.45f}, {0, 0, 0.6f}, {0, 0, 4.0f},
+                                         {20, 0, 1.0f}};
+  const auto e = evaluate_region(r, pts, [](const fettle::Vec3& p) { return p.z(); });
+  EXPECT_EQ(e.roi_points, 5u);
+  EXPECT_EQ(e.over_0_3, 4u);
+  EXPECT_EQ(e.over_0_4, 3u);
+  EXPECT_EQ(e.over_0_5, 2u);
+  EXPECT_NEAR(e.max_residual_mm, 4.0, 1e-6);
+}
+
+TEST(SimEvaluate, TemplateComparisonSeesTheRiserBeforeGrindingAndNotAfterAPerfectGrind) {
+  const auto recipe = sim_test::pump_body();
+  Casting c = Casting::make(recipe, 5);
+  auto cfg = sim_test::small_scanner();
+  cfg.noise.enabled = false;
+  const Scanner scanner(cfg);
+  const auto before = evaluate_against_template(recipe, {scanner.capture(c, 0.0)}, c);
+  c.remove_all_material();
+  const auto after = evaluate_against_template(recipe, {scanner.capture(c, 0.0)}, c);
+  ASSERT_EQ(before.regions.size(), recipe.regions.size());
+  for (std::size_t i = 0; i < before.regions.size(); ++i) {
+    EXPECT_GT(before.regions[i].roi_points, 100u) << before.regions[i].name;
+    EXPECT_GT(before.regions[i].over_0_5, 10u) << before.regions[i].name;
+    EXPECT_LT(after.regions[i].over_0_3, before.regions[i].over_0_3 / 10 + 5) << after.regions[i].name;
+  }
+  EXPECT_THAT(format_table({before}), HasSubstr("riser"));
+}
+
+}  // namespace
