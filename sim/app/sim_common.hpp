@@ -1,0 +1,71 @@
+#pragma once
+// Shared by fettle-sim's scan, grind and evaluate commands.
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <optional>
+#include <string>
+
+#include "fettle/config/load.hpp"
+#include "fettle/sim/sim.hpp"
+
+namespace fettle::sim::app {
+
+struct ScannerOptions {
+  std::filesystem::path cell;  ///< optional cell file: slide.photo_positions_mm and [safety]
+  int width = 0, height = 0;   ///< 0 = the default 2064 x 1544
+  double noise_mm = 0.05;
+  bool no_noise = false;
+  std::vector<double> positions_mm;  ///< overrides the cell's photo positions
+};
+
+inline void add_scanner_options(CLI::App* cmd, ScannerOptions& o) {
+  cmd->add_option("--cell", o.cell, "Cell file: slide.photo_positions_mm and [safety] limits")->check(CLI::ExistingFile);
+  cmd->add_option("--width", o.width, "Image width in pixels (default 2064; the camera is scaled)");
+  cmd->add_option("--height", o.height, "Image height in pixels (default 1544)");
+  cmd->add_option("--noise-mm", o.noise_mm, "Depth noise sigma at 600 mm, head-on (mm)")->check(CLI::Range(0.0, 10.0));
+  cmd->add_flag("--no-noise", o.no_noise, "Ideal range images: no noise, dropouts, flying pixels or outliers");
+  cmd->add_option("--positions-mm", o.positions_mm, "Slide photo positions (mm), overriding the cell file");
+}
+
+inline ScannerConfig scanner_config(const ScannerOptions& o, CellLimits* limits = nullptr) {
+  ScannerConfig c;
+  if (!o.cell.empty()) {
+    const auto cell = config::load_cell(o.cell);
+    c.photo_positions_mm = cell.slide.photo_positions_mm;
+    if (limits != nullptr) {
+      const auto& s = cell.safety;
+      limits->workspace_min_mm = Vec3(s.workspace_min_mm[0], s.workspace_min_mm[1], s.workspace_min_mm[2]);
+      limits->workspace_max_mm = Vec3(s.workspace_max_mm[0], s.workspace_max_mm[1], s.workspace_max_mm[2]);
+      limits->max_speed_mm_s = s.max_speed_mm_s;
+      limits->max_spindle_rpm = s.max_spindle_rpm;
+    }
+  }
+  if (!o.positions_mm.empty()) c.photo_positions_mm = o.positions_mm;
+  if (o.width > 0 || o.height > 0) {
+    const int w = o.width > 0 ? o.width : c.intrinsics.width * o.height / c.intrinsics.height;
+    const int h = o.height > 0 ? o.height : c.intrinsics.height * o.width / c.intrinsics.width;
+    c.intrinsics = c.intrinsics.scaled(w, h);
+  }
+  c.noise.sigma_z_mm = o.noise_mm;
+  c.noise.enabled = !o.no_noise;
+  return c;
+}
+
+/// A progress line on stderr (rewritten in place on a terminal).
+inline Progress progress_printer() {
+  return [last = std::chrono::steady_clock::time_point{}](std::size_t done, std::size_t total,
+                                                          const std::string& what) mutable {
+    const auto now = std::chrono::steady_clock::now();
+    if (done != total && now - last < std::chrono::milliseconds(500)) return;
+    last = now;
+    std::fprintf(stderr, "%s: %zu / %zu (%.0f %%)\n", what.c_str(), done, total,
+                 100.0 * static_cast<double>(done) / static_cast<double>(std::max<std::size_t>(1, total)));
+  };
+}
+
+inline double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace fettle::sim::app
