@@ -6,7 +6,7 @@
 #include "fettle/config/load.hpp"
 #include "fettle/sim/sim.hpp"
 
-int main() {
+int main(int argc, char** argv) {  // argv[1]: optional PNG of the capture coloured by height
   using clock = std::chrono::steady_clock;
   const auto recipe = fettle::config::load_part(FETTLE_SOURCE_DIR "/config/parts/pump-body.toml");
   auto t0 = clock::now();
@@ -24,6 +24,7 @@ int main() {
     const auto cap = scanner.capture(casting, 0.0);
     const double s = std::chrono::duration<double>(clock::now() - t0).count();
     best = std::min(best, s);
+    if (i == 0 && argc > 1 && !fettle::sim::write_height_png(argv[1], cap).ok()) std::printf("cannot write %s\n", argv[1]);
     std::printf("%-28s %10.3f  (%zu valid points)\n", "capture 2064x1544", s, cap.cloud.count_valid());
   }
   std::printf("best capture: %.3f s (target <= 1 s)\n", best);
