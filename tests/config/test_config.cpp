@@ -230,7 +230,7 @@ TEST_F(ConfigFileTest, EveryProblemIsReportedNotJustTheFirst) {
     EXPECT_EQ(e.diagnostics().size(), 3U) << e.what();
     EXPECT_THAT(e.what(), HasSubstr("bogus"));
     EXPECT_THAT(e.what(), HasSubstr("plc.port"));
-    EXPECT_THAT(e.what(), HasSubstr("\"usb\" is not allowed (allowed: socketcan, sim)"));
+    EXPECT_THAT(e.what(), HasSubstr("\"usb\" is not allowed (allowed: socketcan, socketcand, sim)"));
   }
 }
 
