@@ -4,8 +4,14 @@ BUILD_DIR ?= build
 BUILD_TYPE ?= RelWithDebInfo
 JOBS ?= $(shell nproc)
 CMAKE_ARGS ?=
+# Sanitizer and fuzz builds live in their own directories (docs/development.md).
+ASAN_BUILD_DIR ?= build-asan
+FUZZ_BUILD_DIR ?= build-fuzz
+FUZZ_SECONDS ?= 300
+# ctest arguments for test-asan, e.g. ASAN_CTEST_ARGS="-LE slow" in CI.
+ASAN_CTEST_ARGS ?=
 
-.PHONY: all deps configure build test test-unit demo bench clean
+.PHONY: all deps configure build test test-unit test-asan fuzz demo bench clean
 
 all: build
 
@@ -27,6 +33,21 @@ test: build
 # Only the fast unit tests.
 test-unit: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -L unit
+
+# Every test under AddressSanitizer + UndefinedBehaviorSanitizer (gcc, build-asan).
+test-asan: deps
+	cmake -S . -B $(ASAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DFETTLE_SANITIZE=address,undefined \
+	      -DFETTLE_BUILD_BENCH=OFF $(CMAKE_ARGS)
+	cmake --build $(ASAN_BUILD_DIR) -j $(JOBS)
+	cd $(ASAN_BUILD_DIR) && ASAN_OPTIONS=$${ASAN_OPTIONS:-detect_leaks=1} UBSAN_OPTIONS=$${UBSAN_OPTIONS:-print_stacktrace=1} \
+	  ctest --output-on-failure -j $(JOBS) --timeout 900 $(ASAN_CTEST_ARGS)
+
+# libFuzzer targets (clang, build-fuzz), FUZZ_SECONDS each; fails on any crash.
+fuzz: deps
+	CC=clang CXX=clang++ cmake -S . -B $(FUZZ_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) -DFETTLE_FUZZ=ON \
+	      -DFETTLE_BUILD_BENCH=OFF $(CMAKE_ARGS)
+	cmake --build $(FUZZ_BUILD_DIR) -j $(JOBS) --target fuzzers
+	tests/fuzz/run $(FUZZ_BUILD_DIR) $(FUZZ_SECONDS)
 
 demo: build
 	@scripts/demo $(BUILD_DIR)

@@ -12,6 +12,19 @@ if(FETTLE_WERROR)
   target_compile_options(fettle_options INTERFACE $<$<COMPILE_LANGUAGE:CXX>:-Werror>)
 endif()
 
+# FETTLE_FUZZ: every Fettle target gets libFuzzer's coverage instrumentation (clang only) and,
+# unless FETTLE_SANITIZE says otherwise, ASan + UBSan; the fuzzers in tests/fuzz link -fsanitize=fuzzer.
+if(FETTLE_FUZZ)
+  if(NOT CMAKE_CXX_COMPILER_ID STREQUAL "Clang")
+    message(FATAL_ERROR "FETTLE_FUZZ=ON needs clang (libFuzzer): configure a separate build dir with "
+                        "-DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ (see docs/development.md)")
+  endif()
+  if(NOT FETTLE_SANITIZE)
+    set(FETTLE_SANITIZE address,undefined)
+  endif()
+  target_compile_options(fettle_options INTERFACE -fsanitize=fuzzer-no-link)
+endif()
+
 if(FETTLE_SANITIZE)
   if(NOT FETTLE_SANITIZE MATCHES "^(address|undefined|address,undefined|undefined,address|thread)$")
     message(FATAL_ERROR "FETTLE_SANITIZE='${FETTLE_SANITIZE}': use address,undefined or thread")
