@@ -112,7 +112,16 @@ void read_part(TableReader& root, PartRecipe& part) {
   if (auto t = root.table("template", Need::required)) {
     t->choice("source", part.template_source.kind, {"simulator", "scan"}, Need::required);
     if (part.template_source.kind == "scan") t->path("scan", part.template_source.scan, Need::required, true);
+    else t->path("scan", part.template_source.scan);  // simulator: where `fettle-sim golden` writes it
     t->number("voxel_mm", part.template_source.voxel_mm, {0.01, 50.0});
+  }
+  if (auto t = root.table("verification")) {
+    auto& v = part.verification;
+    t->number("ok_max_share_over_0_3_pct", v.ok_max_share_over_0_3_pct, {0.0, 100.0});
+    t->number("ok_max_share_over_0_5_pct", v.ok_max_share_over_0_5_pct, {0.0, 100.0});
+    t->number("gouge_depth_mm", v.gouge_depth_mm, {0.0, 50.0});
+    t->number("nok_max_share_gouged_pct", v.nok_max_share_gouged_pct, {0.0, 100.0});
+    t->number("max_regrind_height_mm", v.max_regrind_height_mm, {0.0, 100.0});
   }
   if (auto t = root.table("fixture")) {
     auto& f = part.fixture;

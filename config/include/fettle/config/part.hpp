@@ -57,8 +57,17 @@ struct FixturePrior {
 
 struct TemplateSource {
   std::string kind = "simulator";  ///< simulator (the simulator's golden part) | scan
-  std::filesystem::path scan;      ///< golden scan (PLY/PCD) when kind == scan
+  std::filesystem::path scan;      ///< golden scan (PLY/PCD); kind simulator: optional, where fettle-sim golden writes it
   double voxel_mm = 0.5;
+};
+
+/// [verification]: the verdict of the scan after grinding, per region (fettle::daemon::verify).
+struct VerificationSettings {
+  double ok_max_share_over_0_3_pct = 1.0;  ///< OK needs at most this share of ROI points > 0.3 mm off
+  double ok_max_share_over_0_5_pct = 0.1;  ///< ... and at most this share > 0.5 mm off
+  double gouge_depth_mm = 0.3;             ///< a point this far below the template is gouged ...
+  double nok_max_share_gouged_pct = 0.1;   ///< ... and more gouged ROI points than this share: NOK
+  double max_regrind_height_mm = 5.0;      ///< more material than this left above the template: NOK
 };
 
 struct PartRecipe {
@@ -71,6 +80,7 @@ struct PartRecipe {
   std::vector<Region> regions;
   PartGeometry geometry;
   VisionSettings vision;
+  VerificationSettings verification;
 };
 
 }  // namespace fettle::config

@@ -1,0 +1,181 @@
+#pragma once
+// The processing pipeline shared by fettled, `fettle plan` and `fettle-sim trial`:
+//
+//   load_recipe()  once per recipe (setup, throws UserError): recipe + golden template +
+//                  vision::PartTemplate (cached on disk next to the recipe) + the template's
+//                  signed distance for planning.
+//   process()      per cycle (values, never throws on bad scans): views (camera frame) ->
+//                  base frame -> fused scan -> vision::inspect (locate, extract) ->
+//                  planning::plan_part (plan, order, validate) -> one Trajectory.
+//   verify()       after grinding: the re-scan of each region against the template ->
+//                  per-region counts over 0.3 / 0.4 / 0.5 mm and a verdict OK / REGRIND / NOK.
+//
+// Frames: base = robot base = fixture frame (table top z = 0, z up); part = the template's
+// frame (recipe ROIs are in it); camera = the 3D camera of one view. T_target_source maps
+// source points into target. Millimetres and radians.
+//
+// Golden template (where it comes from, without the daemon knowing the simulator):
+//  - [template] source = "scan": the golden scan file `scan` (PLY/PCD, part frame, mm,
+//    normals used when present) of the recipe.
+//  - [template] source = "simulator": the golden file `<recipe dir>/<recipe stem>.golden.ply`
+//    (or `scan` when given), written by `fettle-sim golden --part part.toml` (the simulator's
+//    golden part sampled in the part frame with outward normals). A missing file is a
+//    UserError naming the file and the command that writes it.
+//  - LoadOptions::golden: a golden cloud in memory (fettle-sim trial, tests); no file read.
+// See docs/planning.md.
+#include <cstddef>
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "fettle/config/cell.hpp"
+#include "fettle/config/part.hpp"
+#include "fettle/core/cloud.hpp"
+#include "fettle/core/geometry.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/core/trajectory.hpp"
+#include "fettle/planning/io.hpp"
+#include "fettle/planning/planner.hpp"
+#include "fettle/vision/cloud.hpp"
+#include "fettle/vision/inspect.hpp"
+
+namespace fettle::daemon {
+
+/// Called by long steps: (done, total, what is running now, e.g. "vision", "plan riser").
+using Progress = std::function<void(std::size_t done, std::size_t total, const std::string& step)>;
+
+// ---------------------------------------------------------------------------------------------
+// Setup
+
+struct LoadOptions {
+  /// Golden cloud in the part frame (mm, outward normals if known). When set, no golden file
+  /// is read (fettle-sim trial hands the simulator's golden part over in memory).
+  std::optional<vision::Cloud> golden;
+  /// Identity of an in-memory golden for the template cache (e.g. "sim:pump-body:0.5").
+  std::string golden_identity;
+};
+
+/// Everything computed once per recipe.
+struct LoadedRecipe {
+  config::PartRecipe recipe;
+  std::filesystem::path golden_file;  ///< the golden file read (empty when given in memory)
+  std::string golden_identity;        ///< cache key of the golden
+  vision::PartTemplate templ;         ///< whole-part and per-region templates (vision)
+  planning::SignedDistance template_sdf;  ///< signed distance to the template, part frame (planning)
+  std::vector<Eigen::Vector3f> template_points;  ///< template surface samples, part frame (previews, verify)
+  bool template_from_cache = false;
+  double load_ms = 0.0;
+
+  /// The [[tools]] entry of a region (validated by the loader to exist).
+  [[nodiscard]] const config::Tool& tool_for(const config::Region& region) const;
+};
+
+/// Where the golden file of a recipe is expected (see the header comment).
+std::filesystem::path golden_path(const config::PartRecipe& recipe);
+
+/// Builds a LoadedRecipe. Throws UserError (file and reason) when the golden cannot be read
+/// or the template cannot be built.
+LoadedRecipe load_recipe(const config::PartRecipe& recipe, const LoadOptions& options = {});
+/// Reads the part file first (config::load_part; ConfigError lists every problem).
+LoadedRecipe load_recipe(const std::filesystem::path& part_file, const LoadOptions& options = {});
+
+// ---------------------------------------------------------------------------------------------
+// Per cycle
+
+/// One capture of the 3D camera.
+struct View {
+  OrganizedCloud cloud;                             ///< camera frame, mm, NaN = invalid
+  Transform T_base_camera = Transform::Identity();  ///< camera pose at this slide position
+  double slide_position_mm = 0.0;
+};
+
+/// Time spent in one step of the pipeline.
+struct StepTiming {
+  std::string step;  ///< "fuse", "vision", "plan", "verify", ...
+  double ms = 0.0;
+};
+
+/// Per-region outcome of process().
+struct RegionMetrics {
+  std::string name;
+  config::RegionType type = config::RegionType::riser;
+  std::size_t scene_points = 0;   ///< scan points in the region's ROI
+  double fitness = 0.0;           ///< fine ICP fitness of the region
+  double rmse_mm = 0.0;
+  std::size_t excess_points = 0;
+  double excess_volume_mm3 = 0.0;
+  double excess_max_height_mm = 0.0;
+  std::size_t trajectory_points = 0;  ///< grinding points planned for the region (0 = nothing to grind)
+  int segments = 0;
+  double plan_ms = 0.0;
+};
+
+struct ProcessOptions {
+  /// Regions to plan (names); empty = all. A re-grind plans only what verify() flagged.
+  std::vector<std::string> regions;
+};
+
+struct ProcessOutput {
+  vision::Inspection inspection;   ///< localisation and excess material (part frame)
+  Transform T_base_part = Transform::Identity();
+  Trajectory trajectory;           ///< validated; empty points when nothing needs grinding
+  std::vector<StepTiming> timings;  ///< per step, ms
+  std::vector<RegionMetrics> regions;
+  std::vector<planning::PreviewPoint> preview;  ///< scan (base frame) coloured by excess, for preview.png
+  double total_ms = 0.0;
+};
+
+/// Processes one cycle's views. Never throws on bad scans: an Error whose code is
+/// "pipeline.<step>" (or the vision/planning code) and whose message names the step and the
+/// region. Safe to call concurrently on the same LoadedRecipe.
+Result<ProcessOutput> process(const LoadedRecipe& recipe, const config::CellConfig& cell,
+                              const std::vector<View>& views, const Progress& progress = {});
+Result<ProcessOutput> process(const LoadedRecipe& recipe, const config::CellConfig& cell,
+                              const std::vector<View>& views, const ProcessOptions& options,
+                              const Progress& progress = {});
+
+/// Writes trajectory.json, trajectory.csv and preview.png of a processed cycle into `dir`.
+Status write_outputs(const std::filesystem::path& dir, const ProcessOutput& output);
+
+// ---------------------------------------------------------------------------------------------
+// Verification after grinding
+
+enum class Verdict { ok, regrind, nok };
+const char* to_string(Verdict verdict);  ///< "OK", "REGRIND", "NOK"
+
+struct RegionVerification {
+  std::string name;
+  config::RegionType type = config::RegionType::riser;
+  std::size_t roi_points = 0;  ///< re-scanned points inside the region's ROI
+  std::size_t over_0_3 = 0;    ///< points farther than 0.3 / 0.4 / 0.5 mm from the template
+  std::size_t over_0_4 = 0;
+  std::size_t over_0_5 = 0;
+  double share_over_0_3_pct = 0.0;
+  double share_over_0_4_pct = 0.0;
+  double share_over_0_5_pct = 0.0;
+  double max_residual_mm = 0.0;      ///< largest |distance| to the template
+  double max_above_mm = 0.0;         ///< highest material left above the template (>= 0)
+  double max_below_mm = 0.0;         ///< deepest point below the template (>= 0, a gouge)
+  Verdict verdict = Verdict::ok;
+  std::string reason;                ///< why REGRIND / NOK (threshold and value)
+  std::vector<Eigen::Vector3f> roi_points_part;  ///< the ROI points (part frame), for roi_<region>.ply
+  std::vector<float> residual_mm;               ///< their signed distances (> 0 = above)
+};
+
+struct VerificationResult {
+  Transform T_base_part = Transform::Identity();  ///< where the re-scan found the part
+  std::vector<RegionVerification> regions;
+  Verdict verdict = Verdict::ok;      ///< NOK if any region is NOK, else REGRIND if any is, else OK
+  std::vector<StepTiming> timings;
+  /// Names of the regions whose verdict is REGRIND (for process() with ProcessOptions).
+  [[nodiscard]] std::vector<std::string> regrind_regions() const;
+};
+
+/// Compares the re-scan of each region with the template (thresholds from the recipe's
+/// [verification] table). Never throws on bad scans.
+Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
+                                  const std::vector<View>& rescan, const Progress& progress = {});
+
+}  // namespace fettle::daemon

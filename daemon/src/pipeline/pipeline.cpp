@@ -1,0 +1,349 @@
+// The processing pipeline (see fettle/daemon/pipeline.hpp): setup (load_recipe), per cycle
+// (process: fuse -> vision -> plan -> validate) and after grinding (verify).
+#include "fettle/daemon/pipeline.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <system_error>
+
+#include "fettle/config/load.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/planning/surface.hpp"
+#include "fettle/vision/multiview.hpp"
+#include "fettle/vision/preprocess.hpp"
+
+namespace fettle::daemon {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+void report(const Progress& progress, std::size_t done, std::size_t total, const std::string& step) {
+  if (progress) progress(done, total, step);
+}
+
+Error step_error(const std::string& step, const Error& inner) {
+  return Error{inner.code.empty() ? "pipeline." + step : inner.code, "step " + step + ": " + inner.message};
+}
+
+/// The views in the base (= fixture) frame, fused into one cloud when there are several.
+Result<vision::Cloud> fuse(const std::vector<View>& views) {
+  if (views.empty()) return Error{"pipeline.no_views", "step fuse: no views were captured"};
+  std::vector<vision::View> camera_views;
+  camera_views.reserve(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    vision::View v;
+    v.cloud = vision::to_cloud(views[i].cloud);
+    if (v.cloud.empty())
+      return Error{"pipeline.empty_view", "step fuse: view " + std::to_string(i) + " (slide at " +
+                                              std::to_string(views[i].slide_position_mm) +
+                                              " mm) has no valid point: check the camera and its exposure"};
+    v.T_first_view = views.front().T_base_camera.inverse() * views[i].T_base_camera;
+    camera_views.push_back(std::move(v));
+  }
+  if (camera_views.size() == 1) return vision::transformed(camera_views.front().cloud, views.front().T_base_camera);
+  vision::FuseSettings fs;
+  auto fused = vision::fuse_views(camera_views, fs);
+  if (!fused) return step_error("fuse", fused.error());
+  return vision::transformed(fused->cloud, views.front().T_base_camera);
+}
+
+/// Locates the part and its regions in the views (fuse + vision::inspect).
+Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views,
+                                  std::vector<StepTiming>& timings, const Progress& progress, std::size_t total) {
+  auto t0 = Clock::now();
+  report(progress, 0, total, "fuse");
+  auto scan = fuse(views);
+  if (!scan) return scan.error();
+  timings.push_back({"fuse", ms_since(t0)});
+  t0 = Clock::now();
+  report(progress, 1, total, "vision");
+  auto ins = vision::inspect(loaded.recipe, loaded.templ, *scan);
+  timings.push_back({"vision", ms_since(t0)});
+  if (!ins) return step_error("vision", ins.error());
+  return ins;
+}
+
+Vec3 vec3(const std::array<double, 3>& a) { return {a[0], a[1], a[2]}; }
+
+bool in_roi(const config::Region& region, const Eigen::Vector3f& p) {
+  const Vec3 c = vec3(region.roi_center_mm), h = 0.5 * vec3(region.roi_size_mm);
+  const Vec3 q = p.cast<double>() - c;
+  return std::abs(q.x()) <= h.x() && std::abs(q.y()) <= h.y() && std::abs(q.z()) <= h.z();
+}
+
+bool selected(const ProcessOptions& options, const std::string& name) {
+  return options.regions.empty() || std::find(options.regions.begin(), options.regions.end(), name) != options.regions.end();
+}
+
+}  // namespace
+
+const config::Tool& LoadedRecipe::tool_for(const config::Region& region) const {
+  for (const auto& t : recipe.tools)
+    if (t.name == region.tool) return t;
+  throw UserError(recipe.source.string() + ": region '" + region.name + "' names tool '" + region.tool +
+                  "', which has no [[tools]] entry");
+}
+
+fs::path golden_path(const config::PartRecipe& recipe) {
+  if (!recipe.template_source.scan.empty()) return recipe.template_source.scan;
+  const fs::path dir = recipe.source.empty() ? fs::current_path() : recipe.source.parent_path();
+  const std::string stem = recipe.source.empty() ? recipe.id : recipe.source.stem().string();
+  return dir / (stem + ".golden.ply");
+}
+
+LoadedRecipe load_recipe(const config::PartRecipe& recipe, const LoadOptions& options) {
+  const auto t0 = Clock::now();
+  LoadedRecipe out;
+  out.recipe = recipe;
+  const std::string where = recipe.source.empty() ? recipe.id : recipe.source.string();
+  for (const auto& r : recipe.regions) (void)out.tool_for(r);  // every region has its tool
+  vision::Cloud golden;
+  if (options.golden) {
+    golden = *options.golden;
+    out.golden_identity = options.golden_identity.empty() ? "memory:" + recipe.id : options.golden_identity;
+  } else {
+    out.golden_file = golden_path(recipe);
+    std::error_code ec;
+    if (!fs::exists(out.golden_file, ec)) {
+      const std::string how = recipe.template_source.kind == "simulator"
+                                  ? "write it with `fettle-sim golden --part " + where + " --out " +
+                                        out.golden_file.string() + "`"
+                                  : "check [template] scan";
+      throw UserError(where + ": golden template " + out.golden_file.string() + " not found: " + how);
+    }
+    golden = vision::load_cloud(out.golden_file);
+    out.golden_identity = fs::absolute(out.golden_file).string() + " " +
+                          std::to_string(fs::file_size(out.golden_file, ec)) + " " +
+                          std::to_string(fs::last_write_time(out.golden_file, ec).time_since_epoch().count());
+  }
+  if (golden.empty()) throw UserError(where + ": the golden template has no points");
+  vision::require_millimetres(golden, "golden template of " + where);
+  out.templ = recipe.vision.cache && !recipe.source.empty()
+                  ? vision::PartTemplate::load_or_build(recipe, golden, out.golden_identity, &out.template_from_cache)
+                  : vision::PartTemplate::build(recipe, golden);
+  const auto& fine = out.templ.whole().fine();
+  if (!fine.has_normals()) throw UserError(where + ": the template has no normals (a bug in the vision stage)");
+  std::vector<Vec3> pts, nrm;
+  pts.reserve(fine.size());
+  nrm.reserve(fine.size());
+  for (std::size_t i = 0; i < fine.size(); ++i) {
+    pts.push_back(fine.points[i].cast<double>());
+    nrm.push_back(fine.normals[i].cast<double>());
+  }
+  double search_mm = 20.0;
+  for (const auto& t : recipe.tools) search_mm = std::max(search_mm, 0.5 * t.diameter_mm + 5.0);
+  out.template_points = fine.points;
+  out.template_sdf = planning::sdf_from_samples(std::move(pts), std::move(nrm), 4.0, search_mm);
+  out.load_ms = ms_since(t0);
+  return out;
+}
+
+LoadedRecipe load_recipe(const fs::path& part_file, const LoadOptions& options) {
+  return load_recipe(config::load_part(part_file), options);
+}
+
+Result<ProcessOutput> process(const LoadedRecipe& recipe, const config::CellConfig& cell, const std::vector<View>& views,
+                              const Progress& progress) {
+  return process(recipe, cell, views, ProcessOptions{}, progress);
+}
+
+Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConfig& cell, const std::vector<View>& views,
+                              const ProcessOptions& options, const Progress& progress) {
+  const auto t_start = Clock::now();
+  const auto& recipe = loaded.recipe;
+  for (const auto& name : options.regions) {
+    const bool known = std::any_of(recipe.regions.begin(), recipe.regions.end(),
+                                   [&](const config::Region& r) { return r.name == name; });
+    if (!known) return Error{"pipeline.input", "no region named '" + name + "' in recipe " + recipe.id};
+  }
+  const std::size_t total = 3 + recipe.regions.size();
+  ProcessOutput out;
+  auto ins = locate(loaded, views, out.timings, progress, total);
+  if (!ins) return ins.error();
+  out.inspection = std::move(ins.value());
+  out.T_base_part = out.inspection.whole.T_scene_template;
+
+  // Regions: a region the vision stage could not locate cannot be ground safely.
+  std::vector<planning::RegionInput> inputs;
+  for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
+    const auto& region = recipe.regions[i];
+    const auto& rr = out.inspection.regions[i];
+    RegionMetrics m;
+    m.name = region.name;
+    m.type = region.type;
+    m.scene_points = rr.scene_points;
+    m.fitness = rr.registration.fitness;
+    m.rmse_mm = rr.registration.rmse;
+    m.excess_points = rr.excess.points.size();
+    m.excess_volume_mm3 = rr.excess.volume_mm3;
+    m.excess_max_height_mm = rr.excess.max_height_mm;
+    out.regions.push_back(m);
+    if (!selected(options, region.name)) continue;
+    if (!rr.ok())
+      return Error{rr.error->code, "step vision, region '" + region.name + "': " + rr.error->message};
+    planning::RegionInput in;
+    in.region = &region;
+    in.tool = &loaded.tool_for(region);
+    in.T_base_part = rr.registration.T_scene_template;  // scene = base (= fixture) frame
+    in.excess_points_part.reserve(rr.excess.points.size());
+    for (const auto& p : rr.excess.points) in.excess_points_part.push_back(p.cast<double>());
+    in.template_sdf = loaded.template_sdf;
+    inputs.push_back(std::move(in));
+  }
+
+  // Planning: per region (timed), ordering, assembly, validation.
+  const auto settings = planning::PlannerSettings::from(cell.safety);
+  const auto t_plan = Clock::now();
+  std::vector<planning::RegionPlan> plans;
+  plans.reserve(inputs.size());
+  for (std::size_t k = 0; k < inputs.size(); ++k) {
+    const auto& in = inputs[k];
+    report(progress, 2 + k, total, "plan " + in.region->name);
+    const auto t0 = Clock::now();
+    auto plan = planning::plan_region(in, settings);
+    const double ms = ms_since(t0);
+    if (!plan) return step_error("plan", plan.error());
+    for (auto& m : out.regions)
+      if (m.name == in.region->name) {
+        m.plan_ms = ms;
+        m.trajectory_points = plan->points.size();
+        m.segments = plan->segments;
+      }
+    plans.push_back(std::move(plan.value()));
+  }
+  report(progress, 2 + inputs.size(), total, "validate");
+  out.trajectory = planning::assemble(recipe.id, plans, planning::order_regions(plans), settings);
+  if (Status st = planning::validate(out.trajectory, inputs, settings); !st) {
+    out.trajectory = {};
+    return step_error("validate", st.error());
+  }
+  out.timings.push_back({"plan", ms_since(t_plan)});
+
+  // Preview: the located scan in the base frame, coloured by height above the template.
+  const auto& ins_ref = out.inspection;
+  out.preview.reserve(ins_ref.scene_part.size());
+  for (std::size_t i = 0; i < ins_ref.scene_part.size(); ++i) {
+    const float d = i < ins_ref.deviation_mm.size() ? ins_ref.deviation_mm[i] : 0.0f;
+    out.preview.push_back({out.T_base_part * ins_ref.scene_part.points[i].cast<double>(),
+                           std::isfinite(d) ? std::max(0.0, static_cast<double>(d)) : 0.0});
+  }
+  report(progress, total, total, "done");
+  out.total_ms = ms_since(t_start);
+  return out;
+}
+
+Status write_outputs(const fs::path& dir, const ProcessOutput& output) {
+  return planning::write_outputs(dir, output.trajectory, output.preview);
+}
+
+const char* to_string(Verdict verdict) {
+  switch (verdict) {
+    case Verdict::ok: return "OK";
+    case Verdict::regrind: return "REGRIND";
+    case Verdict::nok: return "NOK";
+  }
+  return "?";
+}
+
+std::vector<std::string> VerificationResult::regrind_regions() const {
+  std::vector<std::string> names;
+  for (const auto& r : regions)
+    if (r.verdict == Verdict::regrind) names.push_back(r.name);
+  return names;
+}
+
+namespace {
+
+RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs,
+                                std::vector<Eigen::Vector3f> points_part, std::vector<float> residual_mm) {
+  RegionVerification v;
+  v.name = region.name;
+  v.type = region.type;
+  v.roi_points = points_part.size();
+  std::size_t gouged = 0, too_high = 0;
+  for (const float r : residual_mm) {
+    const double a = std::abs(r);
+    v.over_0_3 += a > 0.3 ? 1 : 0;
+    v.over_0_4 += a > 0.4 ? 1 : 0;
+    v.over_0_5 += a > 0.5 ? 1 : 0;
+    v.max_residual_mm = std::max(v.max_residual_mm, a);
+    v.max_above_mm = std::max(v.max_above_mm, static_cast<double>(r));
+    v.max_below_mm = std::max(v.max_below_mm, static_cast<double>(-r));
+    gouged += -r > vs.gouge_depth_mm ? 1 : 0;
+    too_high += r > vs.max_regrind_height_mm ? 1 : 0;
+  }
+  const double n = static_cast<double>(std::max<std::size_t>(1, v.roi_points));
+  auto pct = [&](std::size_t k) { return 100.0 * static_cast<double>(k) / n; };
+  v.share_over_0_3_pct = pct(v.over_0_3);
+  v.share_over_0_4_pct = pct(v.over_0_4);
+  v.share_over_0_5_pct = pct(v.over_0_5);
+  auto num = [](double x) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.3g", x);
+    return std::string(buf);
+  };
+  if (pct(gouged) > vs.nok_max_share_gouged_pct) {
+    v.verdict = Verdict::nok;
+    v.reason = num(pct(gouged)) + " % of the ROI points are more than gouge_depth_mm = " + num(vs.gouge_depth_mm) +
+               " mm below the template (allowed " + num(vs.nok_max_share_gouged_pct) + " %): gouged";
+  } else if (pct(too_high) > vs.ok_max_share_over_0_5_pct) {
+    v.verdict = Verdict::nok;
+    v.reason = num(pct(too_high)) + " % of the ROI points stand more than max_regrind_height_mm = " +
+               num(vs.max_regrind_height_mm) + " mm above the template: not a grinding leftover";
+  } else if (v.share_over_0_3_pct > vs.ok_max_share_over_0_3_pct || v.share_over_0_5_pct > vs.ok_max_share_over_0_5_pct) {
+    v.verdict = Verdict::regrind;
+    v.reason = num(v.share_over_0_3_pct) + " % of the ROI points > 0.3 mm (allowed " + num(vs.ok_max_share_over_0_3_pct) +
+               " %), " + num(v.share_over_0_5_pct) + " % > 0.5 mm (allowed " + num(vs.ok_max_share_over_0_5_pct) + " %)";
+  }
+  v.roi_points_part = std::move(points_part);
+  v.residual_mm = std::move(residual_mm);
+  return v;
+}
+
+}  // namespace
+
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig&, const std::vector<View>& rescan,
+                                  const Progress& progress) {
+  const auto& recipe = loaded.recipe;
+  VerificationResult out;
+  const std::size_t total = 3;
+  auto ins = locate(loaded, rescan, out.timings, progress, total);
+  if (!ins) return ins.error();
+  const auto t0 = Clock::now();
+  report(progress, 2, total, "verify");
+  out.T_base_part = ins->whole.T_scene_template;
+  for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
+    const auto& region = recipe.regions[i];
+    const auto& rr = ins->regions[i];
+    // The region's own fine pose where it could be found, else the whole part's (after
+    // grinding a region may have too few features of its own).
+    const Transform T_region_part = rr.ok() ? rr.registration.T_scene_template.inverse() * out.T_base_part
+                                            : Transform::Identity();
+    const Eigen::Isometry3f T = T_region_part.cast<float>();
+    std::vector<Eigen::Vector3f> pts;
+    for (const auto& p : ins->scene_part.points) {
+      const Eigen::Vector3f q = T * p;
+      if (in_roi(region, q)) pts.push_back(q);
+    }
+    auto residual = vision::signed_distances(loaded.templ.whole(), pts);
+    out.regions.push_back(judge_region(region, recipe.verification, std::move(pts), std::move(residual)));
+  }
+  for (const auto& r : out.regions) {
+    if (r.verdict == Verdict::nok) out.verdict = Verdict::nok;
+    else if (r.verdict == Verdict::regrind && out.verdict == Verdict::ok) out.verdict = Verdict::regrind;
+  }
+  out.timings.push_back({"verify", ms_since(t0)});
+  report(progress, total, total, "done");
+  return out;
+}
+
+}  // namespace fettle::daemon
