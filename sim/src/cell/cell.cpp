@@ -1,0 +1,529 @@
+// The simulated cell (cell.hpp): PLC, camera, robot and spindle around one casting.
+#include "fettle/sim/cell.hpp"
+
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <condition_variable>
+#include <map>
+#include <mutex>
+#include <optional>
+#include <sstream>
+#include <thread>
+
+#include <boost/asio/executor_work_guard.hpp>
+#include <boost/asio/io_context.hpp>
+#include <boost/asio/post.hpp>
+#include <boost/asio/thread_pool.hpp>
+
+#include "fettle/config/calibration.hpp"
+#include "fettle/config/load.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/core/log.hpp"
+#include "fettle/drivers/canopen_transport.hpp"
+#include "fettle/sim/camera.hpp"
+#include "fettle/sim/robot.hpp"
+#include "fettle/sim/sim.hpp"
+#include "fettle/sim/spindle.hpp"
+
+namespace fettle::sim {
+
+namespace asio = boost::asio;
+using Clock = std::chrono::steady_clock;
+
+struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
+  explicit Impl(CellSimOptions o) : options(std::move(o)), log(log::get("sim.cell")) {}
+
+  CellSimOptions options;
+  std::shared_ptr<spdlog::logger> log;
+  config::PartRecipe recipe;
+  int recipe_id = 1;
+
+  asio::io_context io;
+  std::optional<asio::executor_work_guard<asio::io_context::executor_type>> work;
+  std::thread io_thread;
+  asio::thread_pool grinder{1};
+
+  std::unique_ptr<PlcSimulator> plc;
+  std::unique_ptr<RobotSim> robot;
+  std::shared_ptr<canopen::InProcessBus> bus;
+  std::unique_ptr<SimulatedSpindleDrive> drive;
+  std::unique_ptr<SocketcandServer> socketcand;
+  std::unique_ptr<SimulatedCamera> camera;
+
+  // The casting on the fixture (guarded by casting_mutex).
+  mutable std::mutex casting_mutex;
+  std::optional<Casting> casting;
+  std::atomic<std::uint64_t> casting_version{0};
+  std::unique_ptr<Scanner> scanner;
+  std::size_t views_rendered = 0;
+
+  // Rendering on slide arrival.
+  std::mutex render_mutex;
+  std::condition_variable render_cv;
+  std::optional<std::pair<double, std::uint64_t>> render_request;  // (slide mm, casting version)
+  std::pair<double, std::uint64_t> rendered{NAN, 0};
+  std::thread render_thread;
+
+  // Supervisor.
+  std::atomic<bool> stopping{false};
+  std::thread supervisor;
+  std::atomic<bool> auto_start{true};
+  std::atomic<std::size_t> results_seen{0};
+  int fed = 0;
+  bool part_in_progress = false;
+  Clock::time_point last_command_at{};
+  std::mutex handler_mutex;
+  CellEventHandler handler;
+
+  void event(const std::string& line) {
+    log->info("{}", line);
+    std::lock_guard lock(handler_mutex);
+    if (handler) handler(line);
+  }
+
+  // ---- setup ----
+
+  ScannerConfig scanner_config() const {
+    ScannerConfig c;
+    c.intrinsics = c.intrinsics.scaled(static_cast<int>(options.camera_width), static_cast<int>(options.camera_height));
+    c.intrinsics.k1 = c.intrinsics.k2 = c.intrinsics.p1 = c.intrinsics.p2 = c.intrinsics.k3 = 0.0;  // rectified range maps
+    c.intrinsics.fy = c.intrinsics.fx;
+    c.noise.enabled = options.noise;
+    c.photo_positions_mm = options.cell.slide.photo_positions_mm;
+    if (!options.cell.calibration.file.empty()) {
+      // The camera is where the cell's calibration says it is at slide position 0; the slide moves it along base x.
+      const auto cal = config::load_calibration(options.cell.calibration.file);
+      if (cal.T_base_camera) {
+        c.slide_origin_mm = cal.T_base_camera->translation();
+        c.slide_axis = Vec3(1.0, 0.0, 0.0);
+        Transform R = Transform::Identity();
+        R.linear() = cal.T_base_camera->linear();
+        c.T_slide_camera = R;
+      }
+    }
+    return c;
+  }
+
+  RangeImageSource range_source() {
+    RangeImageModel model;
+    const auto& in = scanner->config().intrinsics;
+    model.width = static_cast<std::uint32_t>(in.width);
+    model.height = static_cast<std::uint32_t>(in.height);
+    model.focal_px = in.fx;
+    model.cx_px = in.cx;
+    model.cy_px = in.cy;
+    RangeImageSource src;
+    src.model = model;
+    src.description = "the casting on the fixture (fettle-sim cell)";
+    auto weak = weak_from_this();
+    src.render = [weak, model](double slide_mm, std::vector<std::uint16_t>& out) {
+      out.assign(std::size_t{model.width} * model.height, model.invalid);
+      auto self = weak.lock();
+      if (!self) return;
+      std::lock_guard lock(self->casting_mutex);
+      if (!self->casting) return;
+      const Capture capture = self->scanner->capture(*self->casting, slide_mm, self->views_rendered++);
+      const auto& z = capture.range;
+      if (z.width != model.width || z.height != model.height) return;
+      for (std::size_t i = 0; i < out.size(); ++i) {
+        const float v = z.data[i];
+        if (!std::isfinite(v)) continue;
+        const double raw = std::round((v - model.offset_mm) / model.scale_mm);
+        if (raw >= 1.0 && raw <= 65535.0) out[i] = static_cast<std::uint16_t>(raw);
+      }
+    };
+    return src;
+  }
+
+  void start() {
+    const auto& cell = options.cell;
+    if (cell.cell.recipes.empty()) throw UserError(cell.source.string() + ": [[cell.recipes]] is empty");
+    const config::RecipeRef* ref = &cell.cell.recipes.front();
+    for (const auto& r : cell.cell.recipes)
+      if (r.plc_recipe_id == options.recipe_id) ref = &r;
+    recipe = config::load_part(ref->file);
+    recipe_id = ref->plc_recipe_id;
+    scanner = std::make_unique<Scanner>(scanner_config());
+    auto_start = options.auto_start;
+
+    PlcSimOptions po;
+    po.address = options.address;
+    po.port = options.plc_port >= 0 ? options.plc_port : cell.plc.port;
+    po.register_base = cell.plc.register_base;
+    po.photo_positions_mm = cell.slide.photo_positions_mm;
+    po.slide_speed_mm_s = options.slide_speed_mm_s;
+    plc = std::make_unique<PlcSimulator>(po);
+    auto weak = weak_from_this();
+    plc->set_slide_gate([weak](int position, double mm) {
+      auto self = weak.lock();
+      return !self || self->gate(position, mm);
+    });
+    plc->start();
+
+    RobotSimOptions ro;
+    ro.address = options.address;
+    ro.port = options.robot_port >= 0 ? options.robot_port : cell.robot.port;
+    ro.expected_cell_id = cell.robot.cell_id;
+    ro.speedup = options.robot_speedup;
+    const auto& s = cell.safety;
+    ro.envelope.min_mm = s.workspace_min_mm;
+    ro.envelope.max_mm = s.workspace_max_mm;
+    ro.envelope.max_speed_mm_s = s.max_speed_mm_s;
+    ro.envelope.max_spindle_rpm = s.max_spindle_rpm;
+    robot = std::make_unique<RobotSim>(io, ro);
+    robot->on_executed([weak](const Trajectory& t) {
+      if (auto self = weak.lock()) self->executed(t);
+    });
+    robot->start();
+
+    bus = canopen::InProcessBus::create();
+    SpindleSimOptions so;
+    so.node_id = static_cast<std::uint8_t>(cell.spindle.node_id);
+    so.max_rpm = cell.spindle.max_rpm;
+    drive = std::make_unique<SimulatedSpindleDrive>(io, bus->attach(io, "drive"), so);
+    socketcand = std::make_unique<SocketcandServer>(
+        io, bus, options.address, options.spindle_port >= 0 ? options.spindle_port : cell.spindle.port,
+        cell.spindle.interface);
+    drive->power_on();
+
+    work.emplace(io.get_executor());
+    io_thread = std::thread([this] { io.run(); });
+
+    if (options.camera) {
+      SimulatedCameraOptions co;
+      co.address = options.address;
+      camera = std::make_unique<SimulatedCamera>(co, range_source());
+    }
+    render_thread = std::thread([this] { render_loop(); });
+    supervisor = std::thread([this] { supervise(); });
+    event("cell ready: PLC " + options.address + ":" + std::to_string(plc->port()) + ", robot " + options.address +
+          ":" + std::to_string(robot_port()) + ", spindle socketcand " + options.address + ":" +
+          std::to_string(socketcand->port()) + " bus " + cell.spindle.interface +
+          (camera ? ", camera " + options.address + " (UDP 3956)" : ", no camera"));
+  }
+
+  /// Runs `f` on the devices' io thread and returns its value (members of RobotSim and the drive live there).
+  template <class T>
+  T on_io(const std::function<T()>& f) const {
+    T value{};
+    std::mutex m;
+    std::condition_variable cv;
+    bool done = false;
+    asio::post(const_cast<asio::io_context&>(io), [&] {
+      T v = f();
+      std::lock_guard l(m);
+      value = v;
+      done = true;
+      cv.notify_all();
+    });
+    std::unique_lock l(m);
+    cv.wait_for(l, std::chrono::seconds(2), [&] { return done; });
+    return value;
+  }
+  int robot_port() const { return on_io<int>([this] { return robot->port(); }); }
+
+  void stop() {
+    if (stopping.exchange(true)) return;
+    render_cv.notify_all();
+    if (supervisor.joinable()) supervisor.join();
+    if (render_thread.joinable()) render_thread.join();
+    if (plc) plc->stop();
+    grinder.join();
+    asio::post(io, [this] {
+      if (robot) robot->close();
+      socketcand.reset();
+      work.reset();
+    });
+    if (io_thread.joinable()) io_thread.join();
+    camera.reset();
+  }
+
+  // ---- camera images follow the slide ----
+
+  /// PLC thread, with its lock held: true once the image for this position is ready.
+  bool gate(int position, double mm) {
+    if (position == 0 || !camera) return true;
+    const std::uint64_t version = casting_version;  // atomic: grinding holds casting_mutex for a while
+    std::lock_guard lock(render_mutex);
+    if (rendered.first == mm && rendered.second == version) return true;
+    if (!render_request || render_request->first != mm || render_request->second != version) {
+      render_request = std::make_pair(mm, version);
+      render_cv.notify_all();
+    }
+    return false;
+  }
+
+  void render_loop() {
+    while (!stopping) {
+      std::pair<double, std::uint64_t> req;
+      {
+        std::unique_lock lock(render_mutex);
+        render_cv.wait(lock, [this] { return stopping || render_request.has_value(); });
+        if (stopping) return;
+        req = *render_request;
+      }
+      const auto t0 = Clock::now();
+      const std::uint64_t version = casting_version;
+      camera->set_slide_position_mm(req.first);
+      std::lock_guard lock(render_mutex);
+      rendered = {req.first, version};
+      if (render_request && *render_request == rendered) render_request.reset();
+      log->debug("image for slide {} mm (casting version {}) in {:.0f} ms", req.first, version,
+                 std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    }
+  }
+
+  // ---- the casting ----
+
+  void set_casting(std::optional<Casting> c, const std::string& what) {
+    {
+      std::lock_guard lock(casting_mutex);
+      casting = std::move(c);
+      ++casting_version;
+    }
+    event(what);
+  }
+
+  void load(std::uint64_t seed) { set_casting(Casting::make(recipe, seed), "part loaded: casting " + std::to_string(seed)); }
+
+  void load_wrong(std::uint64_t seed) {
+    auto c = Casting::make(recipe, seed);
+    const auto [lo, hi] = c.bounds_part_mm();
+    // Upside down: 180 degrees about the part's x axis, resting on its top.
+    Transform flip = Transform::Identity();
+    flip.rotate(Eigen::AngleAxisd(M_PI, Vec3::UnitX()));
+    flip.pretranslate(Vec3(0.0, 0.0, hi.z() + lo.z()));
+    c.set_T_base_part(c.T_base_part() * flip);
+    set_casting(std::move(c), "wrong part loaded: casting " + std::to_string(seed) + " upside down");
+  }
+
+  void unload() { set_casting(std::nullopt, "fixture emptied"); }
+
+  void executed(const Trajectory& t) {
+    if (t.points.empty()) return;
+    auto self = shared_from_this();
+    asio::post(grinder, [self, t] { self->grind_executed(t); });
+  }
+
+  const config::Tool& tool_for_segment(const std::vector<TrajectoryPoint>& pts, const Transform& T_part_base) const {
+    std::map<std::string, int> votes;
+    for (const auto& p : pts) {
+      const Vec3 x = T_part_base * p.T_base_tool.position_mm;
+      for (const auto& r : recipe.regions) {
+        bool inside = true;
+        for (int i = 0; i < 3; ++i) {
+          const auto k = static_cast<std::size_t>(i);
+          inside = inside && std::abs(x[i] - r.roi_center_mm[k]) <= 0.5 * r.roi_size_mm[k] + 5.0;
+        }
+        if (inside) ++votes[r.tool];
+      }
+    }
+    std::string best;
+    int n = -1;
+    for (const auto& [tool, v] : votes)
+      if (v > n) best = tool, n = v;
+    if (best.empty() && !recipe.regions.empty()) best = recipe.regions.front().tool;
+    return find_tool(recipe, best.empty() ? recipe.tools.front().name : best);
+  }
+
+  void grind_executed(const Trajectory& t) {
+    const auto t0 = Clock::now();
+    std::lock_guard lock(casting_mutex);
+    if (!casting) {
+      event("robot moved over an empty fixture (" + std::to_string(t.points.size()) + " points)");
+      return;
+    }
+    CellLimits limits;
+    const auto& s = options.cell.safety;
+    limits.workspace_min_mm = Vec3(s.workspace_min_mm[0], s.workspace_min_mm[1], s.workspace_min_mm[2]);
+    limits.workspace_max_mm = Vec3(s.workspace_max_mm[0], s.workspace_max_mm[1], s.workspace_max_mm[2]);
+    limits.max_speed_mm_s = s.max_speed_mm_s;
+    limits.max_spindle_rpm = s.max_spindle_rpm;
+    const Transform T_part_base = casting->T_base_part().inverse();
+    double before = 0.0, after = 0.0, gouge = 0.0;
+    for (const auto& r : casting->material()) before += r.volume_mm3;
+    std::size_t i = 0;
+    while (i < t.points.size()) {
+      std::size_t j = i;
+      while (j < t.points.size() && t.points[j].segment == t.points[i].segment) ++j;
+      Trajectory seg;
+      seg.part_id = t.part_id;
+      seg.points.assign(t.points.begin() + static_cast<std::ptrdiff_t>(i), t.points.begin() + static_cast<std::ptrdiff_t>(j));
+      GrindOptions go;
+      go.tool = tool_for_segment(seg.points, T_part_base);
+      go.noise_seed = casting->seed() * 1000 + casting_version;
+      auto r = sim::grind(*casting, seg, go, limits);
+      if (!r) event("grinding segment " + std::to_string(t.points[i].segment) + " refused: " + r.error().message);
+      else gouge = std::max(gouge, r->max_gouge_depth_mm());
+      i = j;
+    }
+    for (const auto& r : casting->material()) after += r.volume_mm3;
+    ++casting_version;
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "ground %zu points: material %.0f -> %.0f mm3, deepest gouge %.2f mm (%.1f s)",
+                  t.points.size(), before, after, gouge,
+                  std::chrono::duration<double>(Clock::now() - t0).count());
+    event(buf);
+  }
+
+  // ---- the automatic loop ----
+
+  void supervise() {
+    while (!stopping) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+      const auto snap = plc->snapshot();
+      if (snap.results.size() > results_seen) {
+        for (std::size_t k = results_seen; k < snap.results.size(); ++k)
+          event("result " + std::to_string(k + 1) + ": " + std::string(drivers::plc::name(snap.results[k])));
+        results_seen = snap.results.size();
+        part_in_progress = false;
+      }
+      if (!snap.fettle_written || !snap.fettle_valid || !snap.fettle_heartbeat_ok) continue;
+      const auto state = snap.fettle.state;
+      const auto now = Clock::now();
+      if (auto_start && now - last_command_at > std::chrono::seconds(2)) {
+        const bool finished = options.castings > 0 && fed >= options.castings && !part_in_progress;
+        if ((state == packml::State::stopped || (state == packml::State::complete && !finished))) {
+          plc->send_command(packml::Command::reset);
+          last_command_at = now;
+          event("PLC: Reset");
+        } else if (state == packml::State::idle && !finished) {
+          plc->send_command(packml::Command::start);
+          last_command_at = now;
+          event("PLC: Start");
+        }
+      }
+      if (options.castings > 0 && fed < options.castings && !part_in_progress && state == packml::State::execute &&
+          snap.parts_requested == snap.cycles_accepted) {
+        ++fed;
+        load(options.first_seed + static_cast<std::uint64_t>(fed - 1));
+        plc->part_arrives(recipe_id);
+        part_in_progress = true;
+        event("cycle request " + std::to_string(fed) + " of " + std::to_string(options.castings));
+      }
+    }
+  }
+
+  Status inject(const std::string& line) {
+    std::istringstream in(line);
+    std::string dev, what;
+    in >> dev;
+    std::string rest;
+    std::getline(in, rest);
+    if (!rest.empty() && rest.front() == ' ') rest.erase(0, 1);
+    std::istringstream args(rest);
+    args >> what;
+    auto bad = [&] { return Error{"sim.cell_command", "'" + line + "': unknown (see fettle-sim cell --help)"}; };
+    if (dev == "plc") return plc->apply(rest);
+    if (dev == "auto") {
+      auto_start = what == "on";
+      return {};
+    }
+    if (dev == "camera") {
+      if (!camera) return Error{"sim.cell_command", "no camera in this cell"};
+      int n = 1;
+      if (what == "drop") {
+        args >> n;
+        camera->drop_frames(n);
+      } else if (what == "stall") {
+        args >> n;
+        camera->stall_next_frame_ms(n);
+      } else if (what == "loss") {
+        double r = 0.1;
+        args >> n >> r;
+        camera->lose_packets(n, r);
+      } else {
+        return bad();
+      }
+      return {};
+    }
+    if (dev == "robot") {
+      std::string a, b;
+      args >> a >> b;
+      asio::post(io, [this, what, a, b] {
+        auto f = robot->faults();
+        if (what == "nak") {
+          f.nak_verb = a;
+          f.nak_code = b.empty() ? "STATE" : b;
+        } else if (what == "disconnect-at-chunk") {
+          f.disconnect_at_chunk = std::stoi(a);
+        } else if (what == "fault-at") {
+          f.fault_at_point = std::stoi(a);
+          if (!b.empty()) f.fault_code = b;
+        } else if (what == "ignore-pings") {
+          f.ignore_pings = a == "on";
+        } else if (what == "drop") {
+          robot->drop_client();
+          return;
+        }
+        robot->set_faults(f);
+      });
+      if (what != "nak" && what != "disconnect-at-chunk" && what != "fault-at" && what != "ignore-pings" &&
+          what != "drop")
+        return bad();
+      return {};
+    }
+    if (dev == "spindle") {
+      std::string name;
+      args >> name;
+      auto f = parse_spindle_fault(name);
+      if (!f) return f.error();
+      drive->inject_fault(*f);
+      return {};
+    }
+    if (dev == "part") {
+      std::uint64_t seed = options.first_seed;
+      if (what == "load") {
+        args >> seed;
+        load(seed);
+      } else if (what == "wrong") {
+        args >> seed;
+        load_wrong(seed);
+      } else if (what == "empty") {
+        unload();
+      } else if (what == "request") {
+        plc->part_arrives(recipe_id);
+      } else {
+        return bad();
+      }
+      return {};
+    }
+    return bad();
+  }
+};
+
+CellSim::CellSim(CellSimOptions options) : impl_(std::make_shared<Impl>(std::move(options))) {}
+CellSim::~CellSim() { impl_->stop(); }
+void CellSim::start() { impl_->start(); }
+void CellSim::stop() { impl_->stop(); }
+int CellSim::plc_port() const { return impl_->plc->port(); }
+int CellSim::robot_port() const { return impl_->robot_port(); }
+int CellSim::spindle_port() const { return impl_->socketcand->port(); }
+void CellSim::load(std::uint64_t seed) { impl_->load(seed); }
+void CellSim::unload() { impl_->unload(); }
+void CellSim::load_wrong(std::uint64_t seed) { impl_->load_wrong(seed); }
+void CellSim::request() { impl_->plc->part_arrives(impl_->recipe_id); }
+std::size_t CellSim::results() const { return impl_->results_seen; }
+bool CellSim::done() const {
+  return impl_->options.castings > 0 && impl_->results_seen >= static_cast<std::size_t>(impl_->options.castings);
+}
+void CellSim::set_auto_start(bool on) { impl_->auto_start = on; }
+Status CellSim::inject(const std::string& line) { return impl_->inject(line); }
+PlcSimSnapshot CellSim::plc() const { return impl_->plc->snapshot(); }
+std::vector<double> CellSim::material_mm3() const {
+  std::lock_guard lock(impl_->casting_mutex);
+  std::vector<double> out;
+  if (impl_->casting)
+    for (const auto& r : impl_->casting->material()) out.push_back(r.volume_mm3);
+  return out;
+}
+double CellSim::spindle_rpm() const {
+  return impl_->on_io<double>([this] { return impl_->drive->velocity_rpm(); });
+}
+void CellSim::on_event(CellEventHandler handler) {
+  std::lock_guard lock(impl_->handler_mutex);
+  impl_->handler = std::move(handler);
+}
+
+}  // namespace fettle::sim

@@ -1,0 +1,312 @@
+// fettled end to end: the simulated cell (fettle::sim::CellSim, in this process, on loopback
+// with ephemeral ports; the camera on UDP 3956, hence RESOURCE_LOCK gige) and fettled as a
+// separate process. Three cycles, then one scenario per fault; each ends in the documented
+// state with the documented code and recovers; fettled never crashes; every cycle has a record.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+
+#include "fettle/config/load.hpp"
+#include "fettle/drivers/packml.hpp"
+#include "fettle/drivers/plc_registers.hpp"
+#include "fettle/sim/cell.hpp"
+
+extern char** environ;
+
+namespace fs = std::filesystem;
+using fettle::packml::State;
+using namespace std::chrono_literals;
+
+namespace {
+
+const fs::path kSource = FETTLE_SOURCE_DIR;
+const fs::path kBin = FETTLE_BIN_DIR;
+
+std::string read_text(const fs::path& p) {
+  std::ifstream in(p);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+bool wait_until(const std::function<bool()>& pred, std::chrono::milliseconds timeout) {
+  const auto end = std::chrono::steady_clock::now() + timeout;
+  while (std::chrono::steady_clock::now() < end) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(20ms);
+  }
+  return pred();
+}
+
+std::string cell_toml(const fs::path& dir, int plc, int robot, int spindle) {
+  std::ostringstream t;
+  t << "[cell]\nname = \"test-cell\"\nstate_dir = \"" << (dir / "state").string() << "\"\nworkers = 2\n"
+    << "verification_scan = true\n\n[[cell.recipes]]\nplc_recipe_id = 1\nfile = \""
+    << (kSource / "config/parts/pump-body.toml").string() << "\"\n\n"
+    << "[logging]\nlevel = \"info\"\n\n"
+    << "[plc]\naddress = \"127.0.0.1\"\nport = " << plc
+    << "\nunit_id = 1\nresponse_timeout_ms = 300\npoll_period_ms = 20\nheartbeat_timeout_ms = 1000\n"
+    << "reconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
+    << "[slide]\nphoto_positions_mm = [0.0, 120.0]\ntravel_timeout_ms = 20000\n\n"
+    << "[camera]\naddress = \"127.0.0.1\"\nframe_timeout_ms = 1500\nretries = 1\nexposure_us = 10000.0\n"
+    << "pixel_format = \"Coord3D_C16\"\n\n"
+    << "[robot]\naddress = \"127.0.0.1\"\nport = " << robot
+    << "\ncell_id = \"test-cell\"\nreply_timeout_ms = 2000\nping_period_ms = 500\nmissed_pings = 3\n"
+    << "chunk_points = 20\nrun_timeout_ms = 120000\nreconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
+    << "[spindle]\ntransport = \"socketcand\"\naddress = \"127.0.0.1\"\nport = " << spindle
+    << "\ninterface = \"can0\"\nnode_id = 1\nmode = \"profile_velocity\"\n\n"
+    << "[calibration]\nfile = \"" << (kSource / "config/calibration.sim.toml").string() << "\"\n\n"
+    << "[safety]\nworkspace_min_mm = [-600.0, -600.0, -20.0]\nworkspace_max_mm = [600.0, 600.0, 800.0]\n"
+    << "tool_axis_cone_deg = 60.0\nmax_speed_mm_s = 200.0\nmax_spindle_rpm = 12000.0\nsafe_height_mm = 80.0\n\n"
+    << "[control]\nsocket = \"" << (dir / "fettled.sock").string() << "\"\n\n"
+    << "[records]\nkeep_cycles = 100\nkeep_mb = 5000.0\n";
+  return t.str();
+}
+
+class Fettled : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    if (!fs::exists(kBin / "fettled")) GTEST_SKIP() << "fettled not built";
+    dir_ = fs::temp_directory_path() / ("fettle-test-fettled-" + std::to_string(::getpid()));
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    // The devices first, on free ports; then the cell file fettled reads, with those ports.
+    const auto shipped = fettle::config::load_cell(kSource / "config/cell.sim.toml");
+    fettle::sim::CellSimOptions o;
+    o.cell = shipped;
+    o.plc_port = o.robot_port = o.spindle_port = 0;
+    o.castings = 0;
+    o.auto_start = false;
+    o.robot_speedup = 4.0;
+    cell_ = new fettle::sim::CellSim(o);
+    cell_->on_event([](const std::string& line) { std::cerr << "[cell] " << line << "\n"; });
+    cell_->start();
+    const auto config = dir_ / "cell.toml";
+    std::ofstream(config) << cell_toml(dir_, cell_->plc_port(), cell_->robot_port(), cell_->spindle_port());
+    const std::string exe = (kBin / "fettled").string();
+    const std::string log = (dir_ / "fettled.log").string();
+    posix_spawn_file_actions_t fa;
+    posix_spawn_file_actions_init(&fa);
+    posix_spawn_file_actions_addopen(&fa, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_adddup2(&fa, 1, 2);
+    std::vector<std::string> args{exe, "--config", config.string(), "--allow-root"};
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    ASSERT_EQ(posix_spawn(&pid_, exe.c_str(), &fa, nullptr, argv.data(), environ), 0);
+    posix_spawn_file_actions_destroy(&fa);
+  }
+
+  static void TearDownTestSuite() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGTERM);
+      int status = 0;
+      for (int i = 0; i < 200 && ::waitpid(pid_, &status, WNOHANG) == 0; ++i) std::this_thread::sleep_for(50ms);
+      if (::waitpid(pid_, &status, WNOHANG) == 0) {
+        ::kill(pid_, SIGKILL);
+        ::waitpid(pid_, &status, 0);
+      }
+      pid_ = 0;
+    }
+    delete cell_;
+    cell_ = nullptr;
+    if (!::testing::Test::HasFailure()) fs::remove_all(dir_);
+  }
+
+  void SetUp() override {
+    if (cell_ == nullptr || pid_ <= 0) GTEST_SKIP() << "no cell";
+    ASSERT_TRUE(alive()) << tail_log();
+  }
+
+  static bool alive() {
+    int status = 0;
+    return ::waitpid(pid_, &status, WNOHANG) == 0;
+  }
+
+  static std::string tail_log() {
+    const auto text = read_text(dir_ / "fettled.log");
+    return "fettled log (tail):\n" + text.substr(text.size() > 4000 ? text.size() - 4000 : 0);
+  }
+
+  static State state() { return cell_->plc().fettle.state; }
+  static int fault_code() { return cell_->plc().fettle.fault_code; }
+
+  static ::testing::AssertionResult reaches(State s, std::chrono::milliseconds timeout) {
+    if (wait_until([&] { return cell_->plc().fettle_written && state() == s; }, timeout))
+      return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << "expected " << fettle::packml::name(s) << ", fettled is "
+                                         << fettle::packml::name(state()) << " (fault " << fault_code() << ")\n"
+                                         << tail_log();
+  }
+
+  static void plc(const std::string& command) { ASSERT_TRUE(cell_->inject("plc " + command)); }
+
+  /// Reset + Start from wherever the cell is (Stopped, Idle, Aborted, Held) into Execute.
+  static ::testing::AssertionResult to_execute() {
+    for (int i = 0; i < 8; ++i) {
+      const auto s = state();
+      if (s == State::execute && !cell_->plc().fettle.fault_latched) return ::testing::AssertionSuccess();
+      if (s == State::aborted) (void)cell_->inject("plc clear");
+      else if (s == State::stopped || s == State::complete) (void)cell_->inject("plc reset");
+      else if (s == State::idle) (void)cell_->inject("plc start");
+      else if (s == State::held) {
+        (void)cell_->inject("plc reset");  // clears the latched fault
+        std::this_thread::sleep_for(200ms);
+        (void)cell_->inject("plc unhold");
+      } else if (s == State::execute) {
+        (void)cell_->inject("plc reset");  // only the latch
+      }
+      wait_until([&] { return state() != s || (s == State::execute && !cell_->plc().fettle.fault_latched); }, 15s);
+    }
+    if (state() == State::execute && !cell_->plc().fettle.fault_latched) return ::testing::AssertionSuccess();
+    return ::testing::AssertionFailure() << "could not bring fettled to Execute: " << fettle::packml::name(state())
+                                         << tail_log();
+  }
+
+  /// One cycle for what is on the fixture; waits for a result. True if a result came.
+  static bool good_cycle(std::uint64_t seed) {
+    cell_->load(seed);
+    const auto before = cell_->plc().results.size();
+    cell_->request();
+    return wait_until([&] { return cell_->plc().results.size() > before; }, 120s);
+  }
+
+  /// Requests a cycle and waits for the fault and the state it must end in.
+  static void expect_fault(int code, State end, std::chrono::milliseconds timeout = 90s) {
+    EXPECT_TRUE(wait_until([&] { return cell_->plc().fettle.fault_latched; }, timeout)) << tail_log();
+    EXPECT_EQ(fault_code(), code) << tail_log();
+    EXPECT_TRUE(reaches(end, 20s));
+  }
+
+  static bool spindle_turning() {
+    return wait_until([&] { return cell_->spindle_rpm() > 1000.0; }, 90s);
+  }
+
+  static fs::path dir_;
+  static fettle::sim::CellSim* cell_;
+  static pid_t pid_;
+};
+
+fs::path Fettled::dir_;
+fettle::sim::CellSim* Fettled::cell_ = nullptr;
+pid_t Fettled::pid_ = 0;
+
+TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
+  ASSERT_TRUE(reaches(State::stopped, 30s));
+  ASSERT_TRUE(to_execute());
+  for (std::uint64_t seed = 1; seed <= 3; ++seed) ASSERT_TRUE(good_cycle(seed)) << "cycle " << seed << tail_log();
+  const auto results = cell_->plc().results;
+  ASSERT_EQ(results.size(), 3U);
+  for (auto r : results)
+    EXPECT_TRUE(r == fettle::drivers::plc::CycleResult::ok || r == fettle::drivers::plc::CycleResult::nok);
+  EXPECT_EQ(fault_code(), 0);
+}
+
+TEST_F(Fettled, B_CameraTimeoutHolds) {
+  ASSERT_TRUE(to_execute());
+  cell_->load(4);
+  ASSERT_TRUE(cell_->inject("camera drop 2"));  // retries = 1: two attempts, both lost
+  cell_->request();
+  expect_fault(201, State::held);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, C_EmptyFixtureHolds) {
+  ASSERT_TRUE(to_execute());
+  cell_->unload();
+  cell_->request();
+  expect_fault(501, State::held);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, D_WrongPartHolds) {
+  ASSERT_TRUE(to_execute());
+  cell_->load_wrong(5);
+  cell_->request();
+  expect_fault(502, State::held);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, E_PlcLinkDropMidCycleHolds) {
+  ASSERT_TRUE(to_execute());
+  cell_->load(6);
+  cell_->request();
+  ASSERT_TRUE(wait_until([&] { return cell_->plc().cycles_accepted > 0 && cell_->plc().fettle.slide_target != 0; }, 30s));
+  plc("drop");
+  expect_fault(101, State::held, 30s);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, F_RobotNakHolds) {
+  ASSERT_TRUE(to_execute());
+  cell_->load(7);
+  ASSERT_TRUE(cell_->inject("robot nak TRAJ ENVELOPE"));
+  cell_->request();
+  expect_fault(301, State::held);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, G_RobotDisconnectMidRunAborts) {
+  ASSERT_TRUE(to_execute());
+  cell_->load(8);
+  cell_->request();
+  ASSERT_TRUE(spindle_turning()) << tail_log();
+  std::this_thread::sleep_for(300ms);
+  ASSERT_TRUE(cell_->inject("robot drop"));
+  expect_fault(303, State::aborted, 30s);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, H_SpindleFaultAborts) {
+  ASSERT_TRUE(to_execute());
+  cell_->load(9);
+  cell_->request();
+  ASSERT_TRUE(spindle_turning()) << tail_log();
+  ASSERT_TRUE(cell_->inject("spindle fault overcurrent"));
+  expect_fault(401, State::aborted, 30s);
+  ASSERT_TRUE(to_execute());
+}
+
+TEST_F(Fettled, I_RecoveredCellRunsAgainAndEveryCycleHasItsRecord) {
+  ASSERT_TRUE(to_execute());
+  ASSERT_TRUE(good_cycle(10)) << tail_log();
+  EXPECT_TRUE(alive());
+  // Every cycle started has ended, with report.json in its directory.
+  const auto journal = read_text(dir_ / "state/journal.jsonl");
+  std::map<std::string, std::string> results;
+  std::istringstream in(journal);
+  std::string line;
+  while (std::getline(in, line)) {
+    const auto j = nlohmann::json::parse(line);
+    if (j["event"] == "start") results[j["id"]] = "";
+    if (j["event"] == "end") results[j["id"]] = j["result"];
+  }
+  EXPECT_GE(results.size(), 11U);
+  std::multiset<std::string> kinds;
+  for (const auto& [id, result] : results) {
+    EXPECT_FALSE(result.empty()) << "cycle " << id << " never ended";
+    kinds.insert(result);
+    EXPECT_TRUE(fs::exists(dir_ / "state/cycles" / id / "report.json")) << id;
+  }
+  EXPECT_EQ(kinds.count("FAULT"), 5U);
+  EXPECT_EQ(kinds.count("ABORTED"), 2U);
+  const auto report = nlohmann::json::parse(read_text(dir_ / "state/cycles" / results.rbegin()->first / "report.json"));
+  EXPECT_TRUE(report.contains("steps"));
+}
+
+}  // namespace
