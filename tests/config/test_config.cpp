@@ -123,7 +123,8 @@ TEST(ShippedConfig, SimCellLoadsIntoStructsWithResolvedPaths) {
   ASSERT_EQ(cfg.cell.recipes.size(), 1U);
   EXPECT_TRUE(cfg.cell.recipes[0].file.is_absolute());
   EXPECT_TRUE(fs::exists(cfg.cell.recipes[0].file));
-  EXPECT_EQ(cfg.spindle.transport, "sim");
+  EXPECT_EQ(cfg.spindle.transport, "socketcand");  // fettle-sim cell serves the drive over socketcand
+  EXPECT_EQ(cfg.spindle.port, 29536);
 }
 
 TEST(ShippedConfig, PumpBodyHasFourRegionTypes) {

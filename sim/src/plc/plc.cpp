@@ -14,6 +14,7 @@
 #include <cstring>
 #include <deque>
 #include <map>
+#include <functional>
 #include <mutex>
 #include <optional>
 #include <sstream>
@@ -105,6 +106,7 @@ struct PlcSimulator::Impl {
   Clock::time_point script_start{};
   std::size_t script_next = 0;
   std::vector<std::string> events;
+  std::function<bool(int, double)> slide_gate;  // see PlcSimulator::set_slide_gate
 
   // Model.
   plc::PlcInputs in;
@@ -266,7 +268,9 @@ struct PlcSimulator::Impl {
       const double dist = std::abs(slide_to_mm - slide_from_mm);
       const double t = std::chrono::duration<double>(now - slide_started).count();
       const double travelled = options.slide_speed_mm_s * t;
-      if (travelled >= dist) {
+      if (travelled >= dist && slide_gate && !slide_gate(in.slide_position, slide_to_mm)) {
+        slide_mm = slide_to_mm;  // arrived, but the gate holds "moving" (e.g. the camera image is rendering)
+      } else if (travelled >= dist) {
         slide_mm = slide_to_mm;
         slide_moving = false;
         in.slide_status = in.slide_position == 0 ? plc::SlideStatus::at_home : plc::SlideStatus::at_position;
@@ -525,6 +529,11 @@ void PlcSimulator::drop_connections() {
 void PlcSimulator::freeze_heartbeat(bool frozen) {
   std::lock_guard lock(impl_->mutex);
   impl_->heartbeat_frozen = frozen;
+}
+
+void PlcSimulator::set_slide_gate(std::function<bool(int position, double slide_mm)> gate) {
+  std::lock_guard lock(impl_->mutex);
+  impl_->slide_gate = std::move(gate);
 }
 
 void PlcSimulator::slide_fault(bool faulted) {

@@ -9,6 +9,7 @@
 // register values, slow replies.
 #include <chrono>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -83,6 +84,10 @@ class PlcSimulator {
   void release_register(int offset);
   void release_all_registers();
   void set_reply_delay_ms(int delay_ms);  ///< delay before every reply
+  /// Called (with the simulator's lock held: return at once) when the slide reaches a position;
+  /// while it returns false the slide stays "moving" there (fettle-sim cell renders the camera
+  /// image for the new position first). Empty = no gate.
+  void set_slide_gate(std::function<bool(int position, double slide_mm)> gate);
 
   /// Applies one command line: part ID | reset | stop | start | hold | unhold | abort | clear |
   /// drop | freeze on|off | slide-fault on|off | force OFFSET VALUE | release OFFSET|all | delay MS.
