@@ -5,7 +5,10 @@
 #include <cctype>
 #include <cmath>
 #include <cstdio>
+#include <cstdint>
 #include <ctime>
+#include <fstream>
+#include <iterator>
 #include <sstream>
 #include <tuple>
 
@@ -119,6 +122,8 @@ std::vector<Diagnostic> read(const std::filesystem::path& file, CalibrationFile&
   auto table = detail::parse_file(file, report);
   if (table) {
     c.source = std::filesystem::absolute(file).lexically_normal();
+    std::ifstream in(file, std::ios::binary);
+    c.sha256 = sha256_hex(std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()));
     TableReader root(*table, "", report, c.source.parent_path());
     read_calibration_file(root, c);
     root.finish();
@@ -195,6 +200,38 @@ CalibrationFile load_calibration(const std::filesystem::path& file) {
   return c;
 }
 
+std::vector<CalibrationPose> load_calibration_poses(const std::filesystem::path& file) {
+  Report report(file.string());
+  std::vector<CalibrationPose> poses;
+  if (auto table = detail::parse_file(file, report)) {
+    TableReader root(*table, "", report, std::filesystem::absolute(file).parent_path());
+    root.tables(
+        "pose",
+        [&](TableReader& t, std::size_t i) {
+          CalibrationPose p;
+          p.name = "pose" + std::to_string(i + 1);
+          t.string("name", p.name);
+          std::array<double, 3> pos{};
+          t.vec3("position_mm", pos, detail::kCoordMm, Need::required);
+          std::vector<double> q{0.0, 1.0, 0.0, 0.0};
+          t.numbers("quaternion_wxyz", q, {-1.0, 1.0}, 4, 4);
+          Quat quat(1.0, 0.0, 0.0, 0.0);
+          if (q.size() == 4) {
+            quat = Quat(q[0], q[1], q[2], q[3]);
+            if (std::abs(quat.norm() - 1.0) > 1e-6)
+              t.error("quaternion_wxyz", "is not a unit quaternion (norm " + std::to_string(quat.norm()) + ")");
+          }
+          p.T_base_tool = Pose{Vec3(pos[0], pos[1], pos[2]), quat.normalized()};
+          poses.push_back(p);
+        },
+        Need::required);
+    root.finish();
+  }
+  if (!report.empty()) throw ConfigError(report.diagnostics());
+  if (poses.empty()) throw UserError(file.string() + ": no [[pose]] in the file");
+  return poses;
+}
+
 std::vector<Diagnostic> check_calibration(const std::filesystem::path& file) {
   CalibrationFile c;
   return read(file, c);
@@ -262,6 +299,74 @@ std::string utc_now_iso8601() {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%SZ", &tm);
   return buf;
+}
+
+std::string sha256_hex(const std::string& bytes) {
+  // FIPS 180-4, straightforward: the calibration file is a few kB.
+  static constexpr std::uint32_t k[64] = {
+      0x428a2f98, 0x71374491, 0xb5c0fbcf, 0xe9b5dba5, 0x3956c25b, 0x59f111f1, 0x923f82a4, 0xab1c5ed5,
+      0xd807aa98, 0x12835b01, 0x243185be, 0x550c7dc3, 0x72be5d74, 0x80deb1fe, 0x9bdc06a7, 0xc19bf174,
+      0xe49b69c1, 0xefbe4786, 0x0fc19dc6, 0x240ca1cc, 0x2de92c6f, 0x4a7484aa, 0x5cb0a9dc, 0x76f988da,
+      0x983e5152, 0xa831c66d, 0xb00327c8, 0xbf597fc7, 0xc6e00bf3, 0xd5a79147, 0x06ca6351, 0x14292967,
+      0x27b70a85, 0x2e1b2138, 0x4d2c6dfc, 0x53380d13, 0x650a7354, 0x766a0abb, 0x81c2c92e, 0x92722c85,
+      0xa2bfe8a1, 0xa81a664b, 0xc24b8b70, 0xc76c51a3, 0xd192e819, 0xd6990624, 0xf40e3585, 0x106aa070,
+      0x19a4c116, 0x1e376c08, 0x2748774c, 0x34b0bcb5, 0x391c0cb3, 0x4ed8aa4a, 0x5b9cca4f, 0x682e6ff3,
+      0x748f82ee, 0x78a5636f, 0x84c87814, 0x8cc70208, 0x90befffa, 0xa4506ceb, 0xbef9a3f7, 0xc67178f2};
+  std::uint32_t h[8] = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a, 0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+  std::string m = bytes;
+  const std::uint64_t bits = static_cast<std::uint64_t>(bytes.size()) * 8u;
+  m += static_cast<char>(0x80);
+  while (m.size() % 64 != 56) m += '\0';
+  for (int i = 7; i >= 0; --i) m += static_cast<char>((bits >> (8 * i)) & 0xffu);
+  const auto rotr = [](std::uint32_t x, int n) { return (x >> n) | (x << (32 - n)); };
+  for (std::size_t off = 0; off < m.size(); off += 64) {
+    std::uint32_t w[64];
+    for (int i = 0; i < 16; ++i)
+      w[i] = static_cast<std::uint32_t>(static_cast<unsigned char>(m[off + 4 * i])) << 24 |
+             static_cast<std::uint32_t>(static_cast<unsigned char>(m[off + 4 * i + 1])) << 16 |
+             static_cast<std::uint32_t>(static_cast<unsigned char>(m[off + 4 * i + 2])) << 8 |
+             static_cast<std::uint32_t>(static_cast<unsigned char>(m[off + 4 * i + 3]));
+    for (int i = 16; i < 64; ++i) {
+      const std::uint32_t s0 = rotr(w[i - 15], 7) ^ rotr(w[i - 15], 18) ^ (w[i - 15] >> 3);
+      const std::uint32_t s1 = rotr(w[i - 2], 17) ^ rotr(w[i - 2], 19) ^ (w[i - 2] >> 10);
+      w[i] = w[i - 16] + s0 + w[i - 7] + s1;
+    }
+    std::uint32_t a = h[0], b = h[1], c = h[2], d = h[3], e = h[4], f = h[5], g = h[6], hh = h[7];
+    for (int i = 0; i < 64; ++i) {
+      const std::uint32_t t1 = hh + (rotr(e, 6) ^ rotr(e, 11) ^ rotr(e, 25)) + ((e & f) ^ (~e & g)) + k[i] + w[i];
+      const std::uint32_t t2 = (rotr(a, 2) ^ rotr(a, 13) ^ rotr(a, 22)) + ((a & b) ^ (a & c) ^ (b & c));
+      hh = g;
+      g = f;
+      f = e;
+      e = d + t1;
+      d = c;
+      c = b;
+      b = a;
+      a = t1 + t2;
+    }
+    h[0] += a;
+    h[1] += b;
+    h[2] += c;
+    h[3] += d;
+    h[4] += e;
+    h[5] += f;
+    h[6] += g;
+    h[7] += hh;
+  }
+  char out[65];
+  for (int i = 0; i < 8; ++i) std::snprintf(out + 8 * i, 9, "%08x", h[i]);
+  return std::string(out, 64);
+}
+
+CalibrationIdentity calibration_identity(const CalibrationFile& c) {
+  return CalibrationIdentity{c.id, c.date, c.sha256, c.source};
+}
+
+std::string CalibrationIdentity::to_string() const {
+  std::string s = id + " (" + date + ")";
+  if (!sha256.empty()) s += " sha256:" + sha256.substr(0, 12);
+  if (!file.empty()) s += " " + file.string();
+  return s;
 }
 
 }  // namespace fettle::config

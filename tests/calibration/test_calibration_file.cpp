@@ -139,3 +139,33 @@ TEST(CalibrationFile, CellFileRejectsAnInvalidCalibrationFile) {
   EXPECT_NE(all_text.find("calibration.file"), std::string::npos) << all_text;
   EXPECT_NE(all_text.find("calibration.date"), std::string::npos) << all_text;
 }
+
+TEST(CalibrationFile, Sha256MatchesTheStandardTestVectors) {
+  EXPECT_EQ(config::sha256_hex(""), "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+  EXPECT_EQ(config::sha256_hex("abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+  // Two blocks (56 bytes of message push the length into a second block).
+  EXPECT_EQ(config::sha256_hex("abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq"),
+            "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1");
+}
+
+TEST(CalibrationFile, IdentityHoldsIdDateAndTheHashOfTheBytesRead) {
+  config::CalibrationFile c;
+  c.id = "cell7-a";
+  c.date = "2026-11-22T04:30:00Z";
+  EXPECT_TRUE(config::calibration_identity(c).sha256.empty());  // built in memory, never read
+  const auto file = temp_dir() / "ident.toml";
+  config::write_calibration(file, c);
+  const auto a = config::calibration_identity(config::load_calibration(file));
+  EXPECT_EQ(a.id, "cell7-a");
+  EXPECT_EQ(a.date, "2026-11-22T04:30:00Z");
+  EXPECT_EQ(a.sha256, config::sha256_hex(config::to_toml(c)));
+  EXPECT_EQ(a.file, fs::absolute(file).lexically_normal());
+  EXPECT_NE(a.to_string().find("cell7-a (2026-11-22T04:30:00Z) sha256:" + a.sha256.substr(0, 12)), std::string::npos)
+      << a.to_string();
+  // Same id and date, different content (e.g. edited by hand): the hash tells them apart.
+  c.note = "edited";
+  config::write_calibration(file, c);
+  const auto b = config::calibration_identity(config::load_calibration(file));
+  EXPECT_EQ(b.id, a.id);
+  EXPECT_NE(b.sha256, a.sha256);
+}

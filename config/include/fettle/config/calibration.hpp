@@ -62,7 +62,33 @@ struct CalibrationFile {
   std::optional<Transform> T_camera_projector;  ///< projector points -> camera frame (mm)
   std::optional<HandEyeResiduals> hand_eye;
   double stereo_rms_px = 0.0;  ///< camera-projector calibration RMS (0 = none or nominal)
+  std::string sha256;          ///< SHA-256 (hex) of the file's bytes as read; empty if built in memory
 };
+
+/// What identifies the calibration a cycle ran with; the daemon and `fettle plan` copy it into
+/// every cycle report.
+struct CalibrationIdentity {
+  std::string id;
+  std::string date;
+  std::string sha256;          ///< of the file's bytes as loaded (empty: built in memory, never read)
+  std::filesystem::path file;  ///< where it was read from (empty: built in memory)
+  /// One line for logs and reports: `id (date) sha256:0123456789ab file`.
+  std::string to_string() const;
+};
+
+/// The identity of a loaded calibration file (no file access: the hash was taken when it was read).
+CalibrationIdentity calibration_identity(const CalibrationFile& calibration);
+/// One robot pose of a live hand-eye calibration (`fettle calibrate hand-eye --live --poses`).
+struct CalibrationPose {
+  std::string name;        ///< default "pose<N>"
+  Pose T_base_tool;        ///< TCP (the sphere centre) in the base frame; orientation default: tool down
+};
+/// Reads a pose file: [[pose]] tables with position_mm = [x, y, z] and optional name and
+/// quaternion_wxyz (default [0, 1, 0, 0], the tool pointing down). Throws ConfigError.
+std::vector<CalibrationPose> load_calibration_poses(const std::filesystem::path& file);
+
+/// SHA-256 of a byte string, as 64 lower-case hex digits.
+std::string sha256_hex(const std::string& bytes);
 
 /// Reads a calibration file; throws ConfigError listing every problem found.
 CalibrationFile load_calibration(const std::filesystem::path& file);
