@@ -143,6 +143,7 @@ void read_geometry(TableReader& root, PartGeometry& g) {
     v->number("form_deviation_mm", g.variation.form_deviation_mm, {0.0, 5.0});
     v->number("placement_tolerance_mm", g.variation.placement_tolerance_mm, {0.0, 100.0});
     v->number("placement_tolerance_deg", g.variation.placement_tolerance_deg, {0.0, 45.0});
+    v->number("placement_tilt_deg", g.variation.placement_tilt_deg, {0.0, 5.0});
   }
   t->tables(
       "blocks",

@@ -219,6 +219,32 @@ void CastingModel::rebuild_surface(int i0, int j0, int i1, int j1) {
       }
     }
   }
+  // Cell bounds (separable 3 x 3 max) for the changed cells and their neighbours.
+  if (cell_max.size() != surface.h.size()) {
+    cell_max.assign(surface.h.size(), kNoPart);
+    i0 = std::min(i0, 0), j0 = std::min(j0, 0), i1 = std::max(i1, surface.nx), j1 = std::max(j1, surface.ny);
+  }
+  {
+    const int ci0 = std::max(0, i0 - 1), ci1 = std::min(surface.nx, i1 + 1);
+    const int cj0 = std::max(0, j0 - 1), cj1 = std::min(surface.ny, j1 + 1);
+    const int rj0 = std::max(0, cj0 - 1), rj1 = std::min(surface.ny, cj1 + 1);
+    const auto w = static_cast<std::size_t>(ci1 - ci0);
+    std::vector<float> row_max(w * static_cast<std::size_t>(rj1 - rj0));
+    for (int j = rj0; j < rj1; ++j)
+      for (int i = ci0; i < ci1; ++i) {
+        float mx = surface.at(i, j);
+        if (i > 0) mx = std::max(mx, surface.at(i - 1, j));
+        if (i + 1 < surface.nx) mx = std::max(mx, surface.at(i + 1, j));
+        row_max[static_cast<std::size_t>(j - rj0) * w + static_cast<std::size_t>(i - ci0)] = mx;
+      }
+    for (int j = cj0; j < cj1; ++j)
+      for (int i = ci0; i < ci1; ++i) {
+        float mx = kNoPart;
+        for (int jj = std::max(rj0, j - 1); jj < std::min(rj1, j + 2); ++jj)
+          mx = std::max(mx, row_max[static_cast<std::size_t>(jj - rj0) * w + static_cast<std::size_t>(i - ci0)]);
+        cell_max[static_cast<std::size_t>(j) * static_cast<std::size_t>(surface.nx) + static_cast<std::size_t>(i)] = mx;
+      }
+  }
   zmax_cache = 0.0;
   for (float v : surface.h) zmax_cache = std::max(zmax_cache, static_cast<double>(v));
   zmax_cache += 0.01;
@@ -374,7 +400,15 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
                 Eigen::AngleAxisd(deg_to_rad(fx.rotation_deg[0]), Vec3::UnitX()))
                    .toRotationMatrix();
   T.translation() = Vec3(fx.position_mm[0] + dx, fx.position_mm[1] + dy, fx.position_mm[2]);
-  m->T_base_part = T;
+  // Optional small tilts about the part's x and y (a chip or burr under a locator), from a
+  // stream of their own so that every other draw (and so every casting without tilt) stays
+  // the same. Applied below, once the part's footprint is known.
+  double droll = 0.0, dpitch = 0.0;
+  if (vary && g.variation.placement_tilt_deg > 0.0) {
+    Rng tr(seed, 0x7117);
+    droll = tr.uniform(-1, 1) * deg_to_rad(g.variation.placement_tilt_deg);
+    dpitch = tr.uniform(-1, 1) * deg_to_rad(g.variation.placement_tilt_deg);
+  }
 
   // Bounds of the body and its features.
   Vec3 lo(1e9, 1e9, 0), hi(-1e9, -1e9, 0);
@@ -391,6 +425,25 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
     grow(r.cylinder.center_mm[0] - R, r.cylinder.center_mm[1] - R, r.cylinder.center_mm[0] + R,
          r.cylinder.center_mm[1] + R);
   }
+  if (droll != 0.0 || dpitch != 0.0) {
+    // Tilted about the part's bottom centre, then lifted so that the lowest bottom corner of
+    // the body's blocks rests where the flat part's bottom was: the rest is above it.
+    const Vec3 pivot(0.5 * (lo.x() + hi.x()), 0.5 * (lo.y() + hi.y()), 0.0);
+    const Eigen::Matrix3d R0 = T.linear();
+    const Eigen::Matrix3d R = R0 * (Eigen::AngleAxisd(dpitch, Vec3::UnitY()) * Eigen::AngleAxisd(droll, Vec3::UnitX()))
+                                       .toRotationMatrix();
+    double low = std::numeric_limits<double>::infinity(), low0 = low;
+    for (const auto& b : g.blocks)
+      for (double x : {b.min_mm[0], b.max_mm[0]})
+        for (double y : {b.min_mm[1], b.max_mm[1]}) {
+          const Vec3 p = Vec3(x, y, b.min_mm[2]) - pivot;
+          low = std::min(low, (R * p).z());
+          low0 = std::min(low0, (R0 * p).z());
+        }
+    T.translation() += R0 * pivot - R * pivot + Vec3(0.0, 0.0, low0 - low);
+    T.linear() = R;
+  }
+  m->T_base_part = T;
   m->nominal = make_field(lo, hi, g.surface_grid_mm);
   auto& nom = m->nominal;
   for (int j = 0; j < nom.ny; ++j)

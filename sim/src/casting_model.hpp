@@ -4,8 +4,8 @@
 //    golden = nominal, casting = nominal + form deviation (cut by grinding from the top).
 //  - material: per feature (flash, riser) a dexel grid along part z at material_grid_mm,
 //    one span [z0, z1] per column (empty when z1 <= z0).
-//  - surface: what the scanner sees, max(body, material tops), with a coarse tile max
-//    for fast ray marching.
+//  - surface: what the scanner sees, max(body, material tops), with per-tile and per-cell
+//    upper bounds for fast ray marching.
 //  - the golden body's exact solid as a CSG signed distance (gouge depths).
 #include <array>
 #include <cmath>
@@ -69,6 +69,8 @@ class CastingModel {
   HeightField body;     ///< this casting's body top
   HeightField surface;  ///< body + material tops (what is seen)
   std::vector<float> tile_max;  ///< per kTile x kTile cells of `surface` (with a 1-cell border)
+  std::vector<float> cell_max;  ///< per cell of `surface`: max of its 3 x 3 neighbourhood, which bounds
+                                ///< the bilinear surface over the cell (the ray march skips by it)
   int tiles_x = 0, tiles_y = 0;
   double zmax_cache = 0.0;  ///< highest surface point
   std::vector<Material> materials;
@@ -80,7 +82,7 @@ class CastingModel {
   /// Golden body top at (x, y) from the primitives; NaN off the body.
   [[nodiscard]] double nominal_top(double x, double y) const;
   [[nodiscard]] double golden_sdf(const Vec3& p) const;
-  /// Rebuilds `surface` and the tile maxima for cells [i0, i1) x [j0, j1) (all when empty).
+  /// Rebuilds `surface`, the tile and the cell maxima for cells [i0, i1) x [j0, j1) (all when empty).
   void rebuild_surface(int i0 = 0, int j0 = 0, int i1 = -1, int j1 = -1);
   [[nodiscard]] std::vector<RegionTruth> truth() const;
 };

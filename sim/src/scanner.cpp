@@ -1,7 +1,9 @@
 // The structured-light scanner: pinhole + distortion camera on a slide, ray casting the
 // scene (table plane, clamps, clutter, the casting's height field), then the noise model.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <memory>
 #include <thread>
 
 #include "casting_model.hpp"
@@ -64,27 +66,40 @@ Transform ScannerConfig::T_base_camera(double s) const { return T_base_slide(s) 
 
 namespace {
 
+/// Ray hits are located to this depth (mm), far below the noise and the C16 step (0.02 mm).
+constexpr double kHitTolerance_mm = 2e-4;
+
 struct Hit {
   double t = std::numeric_limits<double>::infinity();  ///< along (x, y, 1) camera ray = depth Z
   Vec3 normal_base{0, 0, 1};
   Vec3 point_base{0, 0, 0};
 };
 
+/// A ray o + t d with the reciprocals of its direction (divisions are the ray caster's cost).
+struct Ray {
+  Vec3 o, d, inv;  ///< inv = 1 / d per axis (0 where |d| < 1e-15: that axis is never crossed)
+  Ray(const Vec3& origin, const Vec3& direction) : o(origin), d(direction) {
+    for (int a = 0; a < 3; ++a) inv[a] = std::abs(d[a]) > 1e-15 ? 1.0 / d[a] : 0.0;
+  }
+};
+
 /// 2D DDA over a grid of cells of size `cell` with origin (gx, gy), visiting cells the ray
-/// o + t d passes between t0 and t1. visit(i, j, ta, tb) returns true to stop.
+/// passes between t0 and t1. visit(i, j, ta, tb) returns true to stop.
 template <class Visit>
-void dda(double gx, double gy, double cell, int nx, int ny, const Vec3& o, const Vec3& d, double t0, double t1,
+void dda(double gx, double gy, double cell, double inv_cell, int nx, int ny, const Ray& r, double t0, double t1,
          Visit&& visit) {
+  const Vec3& o = r.o;
+  const Vec3& d = r.d;
   const double px = o.x() + t0 * d.x(), py = o.y() + t0 * d.y();
-  int i = std::clamp(static_cast<int>(std::floor((px - gx) / cell)), 0, nx - 1);
-  int j = std::clamp(static_cast<int>(std::floor((py - gy) / cell)), 0, ny - 1);
+  int i = std::clamp(static_cast<int>(std::floor((px - gx) * inv_cell)), 0, nx - 1);
+  int j = std::clamp(static_cast<int>(std::floor((py - gy) * inv_cell)), 0, ny - 1);
   const int si = d.x() > 0 ? 1 : -1, sj = d.y() > 0 ? 1 : -1;
   const double inf = std::numeric_limits<double>::infinity();
-  const double dtx = std::abs(d.x()) > 1e-15 ? cell / std::abs(d.x()) : inf;
-  const double dty = std::abs(d.y()) > 1e-15 ? cell / std::abs(d.y()) : inf;
+  const double dtx = r.inv.x() != 0.0 ? cell * std::abs(r.inv.x()) : inf;
+  const double dty = r.inv.y() != 0.0 ? cell * std::abs(r.inv.y()) : inf;
   double tx = inf, ty = inf;
-  if (std::abs(d.x()) > 1e-15) tx = (gx + (i + (si > 0 ? 1 : 0)) * cell - o.x()) / d.x();
-  if (std::abs(d.y()) > 1e-15) ty = (gy + (j + (sj > 0 ? 1 : 0)) * cell - o.y()) / d.y();
+  if (r.inv.x() != 0.0) tx = (gx + (i + (si > 0 ? 1 : 0)) * cell - o.x()) * r.inv.x();
+  if (r.inv.y() != 0.0) ty = (gy + (j + (sj > 0 ? 1 : 0)) * cell - o.y()) * r.inv.y();
   double t = t0;
   while (t < t1) {
     const double tn = std::min({tx, ty, t1});
@@ -101,39 +116,69 @@ void dda(double gx, double gy, double cell, int nx, int ny, const Vec3& o, const
   }
 }
 
-/// Intersects a part-frame ray with the surface height field.
-bool march(const CastingModel& m, const Vec3& o, const Vec3& d, double t_limit, double& t_hit) {
-  const auto& s = m.surface;
+/// The surface seen by rays in the part frame, with the bounds the march skips by.
+struct FieldView {
+  const CastingModel& m;
+  double x0, y0, pitch, inv_pitch;
+  int nx, ny;
+  const float* h;
+  explicit FieldView(const CastingModel& model)
+      : m(model), x0(model.surface.x0), y0(model.surface.y0), pitch(model.surface.pitch),
+        inv_pitch(1.0 / model.surface.pitch), nx(model.surface.nx), ny(model.surface.ny), h(model.surface.h.data()) {}
+  /// HeightField::bilinear with the division by the pitch hoisted (same surface).
+  [[nodiscard]] double bilinear(double x, double y) const {
+    const double u = (x - x0) * inv_pitch - 0.5, v = (y - y0) * inv_pitch - 0.5;
+    if (!(u >= 0) || !(v >= 0) || u >= nx - 1 || v >= ny - 1) return kNoPart;
+    const int i = static_cast<int>(u), j = static_cast<int>(v);
+    const double tu = u - i, tv = v - j;
+    const float* r0 = h + static_cast<std::size_t>(j) * static_cast<std::size_t>(nx) + static_cast<std::size_t>(i);
+    const float* r1 = r0 + nx;
+    return (1 - tv) * ((1 - tu) * r0[0] + tu * r0[1]) + tv * ((1 - tu) * r1[0] + tu * r1[1]);
+  }
+};
+
+/// Intersects a part-frame ray with the surface height field: a DDA over tiles (skipped
+/// when the ray stays above their maximum), then over cells (skipped the same way with the
+/// cell's bound `cell_max`), then bisection on the bilinear surface inside the first cell
+/// the ray ends below, from where the ray reaches the cell's bound.
+bool march(const FieldView& fv, const Ray& ray, double t_limit, double& t_hit) {
+  const auto& m = fv.m;
+  const Vec3& o = ray.o;
+  const Vec3& d = ray.d;
   if (d.z() >= -1e-12) return false;
-  const double x0 = s.x0, x1 = s.x0 + s.nx * s.pitch, y0 = s.y0, y1 = s.y0 + s.ny * s.pitch;
+  const double x0 = fv.x0, x1 = fv.x0 + fv.nx * fv.pitch, y0 = fv.y0, y1 = fv.y0 + fv.ny * fv.pitch;
   double t0 = 0, t1 = t_limit;
-  auto slab = [&](double oo, double dd, double lo, double hi) {
+  auto slab = [&](double oo, double dd, double inv, double lo, double hi) {
     if (std::abs(dd) < 1e-15) return oo >= lo && oo <= hi;
-    double a = (lo - oo) / dd, b = (hi - oo) / dd;
+    double a = (lo - oo) * inv, b = (hi - oo) * inv;
     if (a > b) std::swap(a, b);
     t0 = std::max(t0, a), t1 = std::min(t1, b);
     return t0 <= t1;
   };
-  if (!slab(o.x(), d.x(), x0, x1) || !slab(o.y(), d.y(), y0, y1) || !slab(o.z(), d.z(), 0.0, m.zmax_cache))
+  if (!slab(o.x(), d.x(), ray.inv.x(), x0, x1) || !slab(o.y(), d.y(), ray.inv.y(), y0, y1) ||
+      !slab(o.z(), d.z(), ray.inv.z(), 0.0, m.zmax_cache))
     return false;
-  auto f = [&](double t) { return o.z() + t * d.z() - s.bilinear(o.x() + t * d.x(), o.y() + t * d.y()); };
+  auto f = [&](double t) { return o.z() + t * d.z() - fv.bilinear(o.x() + t * d.x(), o.y() + t * d.y()); };
   bool found = false;
-  const double tile = s.pitch * CastingModel::kTile;
+  const double tile = fv.pitch * CastingModel::kTile;
+  const float* cell_max = m.cell_max.data();
   double t_prev = t0;
-  dda(x0, y0, tile, m.tiles_x, m.tiles_y, o, d, t0, t1, [&](int ti, int tj, double ta, double tb) {
+  dda(x0, y0, tile, 1.0 / tile, m.tiles_x, m.tiles_y, ray, t0, t1, [&](int ti, int tj, double ta, double tb) {
     const double zlow = o.z() + tb * d.z();
     const float tm = m.tile_max[static_cast<std::size_t>(tj) * static_cast<std::size_t>(m.tiles_x) + static_cast<std::size_t>(ti)];
     if (tm < zlow) {
       t_prev = tb;
       return false;
     }
-    dda(x0, y0, s.pitch, s.nx, s.ny, o, d, ta, tb, [&](int, int, double, double cb) {
-      if (f(cb) > 0) {
+    dda(x0, y0, fv.pitch, fv.inv_pitch, fv.nx, fv.ny, ray, ta, tb, [&](int i, int j, double, double cb) {
+      const float cm = cell_max[static_cast<std::size_t>(j) * static_cast<std::size_t>(fv.nx) + static_cast<std::size_t>(i)];
+      if (cm < o.z() + cb * d.z() || f(cb) > 0) {  // above everything in this cell at its exit
         t_prev = cb;
         return false;
       }
-      double a = t_prev, b = cb;
-      for (int it = 0; it < 14; ++it) {
+      // Nothing in this cell is above its bound: start where the ray comes down to it.
+      double a = std::max(t_prev, (static_cast<double>(cm) - o.z()) * ray.inv.z()), b = cb;
+      for (int it = 0; it < 40 && b - a > kHitTolerance_mm; ++it) {
         const double mid = 0.5 * (a + b);
         if (f(mid) > 0)
           a = mid;
@@ -149,6 +194,33 @@ bool march(const CastingModel& m, const Vec3& o, const Vec3& d, double t_limit, 
   return found;
 }
 
+/// Runs fn(row0, row1) over [0, rows) on `threads` threads, in small chunks taken in turn
+/// (the result never depends on which thread rendered a row).
+template <class Fn>
+void parallel_rows(std::size_t rows, std::size_t threads, const Fn& fn) {
+  constexpr std::size_t kChunk = 8;
+  std::atomic<std::size_t> next{0};
+  auto worker = [&] {
+    for (;;) {
+      const std::size_t a = next.fetch_add(kChunk);
+      if (a >= rows) return;
+      fn(a, std::min(rows, a + kChunk));
+    }
+  };
+  std::vector<std::thread> pool;
+  for (std::size_t t = 1; t < threads; ++t) pool.emplace_back(worker);
+  worker();
+  for (auto& th : pool) th.join();
+}
+
+/// Coord3D_C16 value of a depth (see to_range16).
+inline std::uint16_t encode16(float z, double scale_mm, double offset_mm, std::uint16_t invalid_value) {
+  if (std::isnan(z)) return invalid_value;
+  const double q = std::round((z - offset_mm) / scale_mm);
+  return (q < 0 || q > 65535 || static_cast<std::uint16_t>(q) == invalid_value) ? invalid_value
+                                                                               : static_cast<std::uint16_t>(q);
+}
+
 }  // namespace
 
 struct Scanner::Impl {
@@ -159,14 +231,18 @@ struct Scanner::Impl {
 Scanner::Scanner(ScannerConfig config) : impl_(std::make_unique<Impl>()) {
   impl_->config = std::move(config);
   const auto& K = impl_->config.intrinsics;
-  impl_->rays.resize(static_cast<std::size_t>(K.width) * static_cast<std::size_t>(K.height) * 2);
-  for (int v = 0; v < K.height; ++v)
-    for (int u = 0; u < K.width; ++u) {
-      const Vec3 r = K.ray(u, v);
-      const auto k = (static_cast<std::size_t>(v) * static_cast<std::size_t>(K.width) + static_cast<std::size_t>(u)) * 2;
-      impl_->rays[k] = static_cast<float>(r.x());
-      impl_->rays[k + 1] = static_cast<float>(r.y());
-    }
+  const auto W = static_cast<std::size_t>(K.width);
+  impl_->rays.resize(W * static_cast<std::size_t>(K.height) * 2);
+  parallel_rows(static_cast<std::size_t>(K.height), static_cast<std::size_t>(std::max(1, impl_->config.threads)),
+                [&](std::size_t r0, std::size_t r1) {
+                  for (std::size_t v = r0; v < r1; ++v)
+                    for (std::size_t u = 0; u < W; ++u) {
+                      const Vec3 r = K.ray(static_cast<double>(u), static_cast<double>(v));
+                      const auto k = (v * W + u) * 2;
+                      impl_->rays[k] = static_cast<float>(r.x());
+                      impl_->rays[k + 1] = static_cast<float>(r.y());
+                    }
+                });
 }
 Scanner::~Scanner() = default;
 Scanner::Scanner(Scanner&&) noexcept = default;
@@ -191,20 +267,25 @@ Capture Scanner::capture(const Casting& casting, double slide_position_mm, std::
   const Vec3 o_base = T_base_camera.translation();
   const Vec3 o_part = T_part_base * o_base;
   const Eigen::Matrix3d R_pb = T_part_base.linear();
+  const Eigen::Matrix3d R_bp = m.T_base_part.linear();
+  const float* rays = impl_->rays.data();
+  const FieldView fv(m);
+  const float nanf = std::numeric_limits<float>::quiet_NaN();
 
-  std::vector<float> depth(N, std::numeric_limits<float>::quiet_NaN());
-  std::vector<float> cos_inc(N, 1.0f);
-  std::vector<Eigen::Vector3f> hit_base(N);
-
+  // Pass 1: ideal depth (Z along the camera axis) and the cosine of the incidence angle.
+  const auto depth = std::make_unique_for_overwrite<float[]>(N);
+  const auto cos_inc = std::make_unique_for_overwrite<float[]>(N);
   auto render_rows = [&](std::size_t r0, std::size_t r1) {
     for (std::size_t v = r0; v < r1; ++v)
       for (std::size_t u = 0; u < W; ++u) {
         const std::size_t k = v * W + u;
-        const Vec3 rc(impl_->rays[2 * k], impl_->rays[2 * k + 1], 1.0);
-        const Vec3 d = R_bc * rc;
+        depth[k] = nanf;
+        cos_inc[k] = 1.0f;
+        const Vec3 d = R_bc * Vec3(rays[2 * k], rays[2 * k + 1], 1.0);
+        const Ray ray_base(o_base, d);
         Hit best;
         if (d.z() < 0) {  // table plane z = 0
-          best.t = -o_base.z() / d.z();
+          best.t = -o_base.z() * ray_base.inv.z();
           best.normal_base = Vec3::UnitZ();
         }
         for (const auto& b : m.scene) {
@@ -216,7 +297,7 @@ Capture Scanner::capture(const Casting& casting, double slide_position_mm, std::
               ok = o_base[a] >= b.min_mm[a] && o_base[a] <= b.max_mm[a];
               continue;
             }
-            double ta = (b.min_mm[a] - o_base[a]) / d[a], tb = (b.max_mm[a] - o_base[a]) / d[a];
+            double ta = (b.min_mm[a] - o_base[a]) * ray_base.inv[a], tb = (b.max_mm[a] - o_base[a]) * ray_base.inv[a];
             if (ta > tb) std::swap(ta, tb);
             if (ta > t0) t0 = ta, axis = a;
             t1 = std::min(t1, tb);
@@ -230,99 +311,86 @@ Capture Scanner::capture(const Casting& casting, double slide_position_mm, std::
         }
         const Vec3 dp = R_pb * d;
         double th = 0;
-        if (march(m, o_part, dp, best.t, th) && th < best.t) {
+        if (march(fv, Ray(o_part, dp), best.t, th) && th < best.t) {
           best.t = th;
           const Vec3 pp = o_part + th * dp;
           const Eigen::Vector2d g = m.surface.gradient(pp.x(), pp.y());
-          best.normal_base = m.T_base_part.linear() * Vec3(-g.x(), -g.y(), 1.0).normalized();
+          best.normal_base = R_bp * Vec3(-g.x(), -g.y(), 1.0).normalized();
         }
         if (!std::isfinite(best.t)) continue;
         if (best.t < cfg.min_range_mm || best.t > cfg.max_range_mm) continue;
         depth[k] = static_cast<float>(best.t);
         cos_inc[k] = static_cast<float>(std::abs(best.normal_base.dot(d.normalized())));
-        hit_base[k] = (o_base + best.t * d).cast<float>();
       }
   };
   const std::size_t threads = static_cast<std::size_t>(std::max(1, cfg.threads));
-  auto parallel = [&](const auto& fn) {
-    std::vector<std::thread> pool;
-    const std::size_t chunk = (H + threads - 1) / threads;
-    for (std::size_t t = 0; t < threads; ++t) {
-      const std::size_t a = t * chunk, b = std::min(H, a + chunk);
-      if (a < b) pool.emplace_back([&fn, a, b] { fn(a, b); });
-    }
-    for (auto& th : pool) th.join();
-  };
-  parallel(render_rows);
+  parallel_rows(H, threads, render_rows);
 
-  // Noise: every pixel draws from its own stream (seed, view, pixel): thread independent.
+  // Pass 2: the noise model, then the range images and the cloud. Every pixel draws from its
+  // own stream (seed, view, pixel): thread independent.
+  Capture cap;
+  cap.range.width = cap.range16.width = cap.cloud.width = static_cast<std::uint32_t>(W);
+  cap.range.height = cap.range16.height = cap.cloud.height = static_cast<std::uint32_t>(H);
+  cap.range.data.resize(N);
+  cap.range16.data.resize(N);
+  cap.cloud.points.resize(N);
+  const RangeImage16 enc;  // default Coord3D_C16 scale, offset and invalid value
+  cap.range16.scale_mm = enc.scale_mm, cap.range16.offset_mm = enc.offset_mm, cap.range16.invalid_value = enc.invalid_value;
   const auto& nm = cfg.noise;
-  std::vector<float> out(depth);
   const std::uint64_t seed = casting.seed();
+  const double start = deg_to_rad(nm.dropout_start_deg), full = deg_to_rad(nm.dropout_full_deg);
+  const double cos_start = std::cos(start), cos_full = std::cos(full);
+  // The measured depth of pixel k (ideal depth z > 0), or NaN where it drops out.
+  auto add_noise = [&](std::size_t k, std::size_t u, std::size_t v, float z) -> float {
+    Rng rng(seed * 0x100000001b3ULL + view, k, 0xD15C);
+    const double c = std::max(1e-3, static_cast<double>(cos_inc[k]));
+    if (c <= cos_full) return nanf;  // incidence beyond dropout_full_deg
+    if (c < cos_start) {            // between dropout_start_deg and dropout_full_deg
+      const double inc = std::acos(std::min(1.0, c));
+      if (rng.uniform() < (inc - start) / (full - start)) return nanf;
+    }
+    if (nm.surface_dropout_fraction > 0) {
+      const Vec3 d = R_bc * Vec3(rays[2 * k], rays[2 * k + 1], 1.0);
+      const Eigen::Vector3f p = (o_base + static_cast<double>(z) * d).cast<float>();
+      if (value_noise_cell(seed, p.x(), p.y(), p.z()) < nm.surface_dropout_fraction) return nanf;
+    }
+    double zz = z;
+    // flying pixels at depth discontinuities
+    float other = z;
+    double jump = 0;
+    auto look = [&](std::size_t kk) {
+      const float zn = depth[kk];
+      if (std::isnan(zn)) return;
+      if (std::abs(zn - z) > jump) jump = std::abs(zn - z), other = zn;
+    };
+    if (u > 0) look(k - 1);
+    if (u + 1 < W) look(k + 1);
+    if (v > 0) look(k - W);
+    if (v + 1 < H) look(k + W);
+    if (jump > nm.discontinuity_mm && rng.uniform() < nm.flying_pixel_fraction)
+      zz += rng.uniform(0.15, 0.85) * (other - z);
+    const double rel = z / nm.reference_distance_mm;
+    const double grow = nm.distance_exponent == 2.0 ? rel * rel : std::pow(rel, nm.distance_exponent);
+    const double sigma = nm.sigma_z_mm * grow * (1.0 + nm.grazing_gain * (std::min(1.0 / c, 5.0) - 1.0));
+    zz += sigma * rng.gaussian();
+    if (rng.uniform() < nm.outlier_fraction) zz += rng.uniform(-nm.outlier_range_mm, nm.outlier_range_mm);
+    return (zz < cfg.min_range_mm || zz > cfg.max_range_mm) ? nanf : static_cast<float>(zz);
+  };
   auto noise_rows = [&](std::size_t r0, std::size_t r1) {
     for (std::size_t v = r0; v < r1; ++v)
       for (std::size_t u = 0; u < W; ++u) {
         const std::size_t k = v * W + u;
         const float z = depth[k];
-        if (!nm.enabled || std::isnan(z)) continue;
-        Rng rng(seed * 0x100000001b3ULL + view, k, 0xD15C);
-        const double c = std::max(1e-3, static_cast<double>(cos_inc[k]));
-        const double inc = std::acos(std::min(1.0, c));
-        if (inc >= deg_to_rad(nm.dropout_full_deg)) {
-          out[k] = std::numeric_limits<float>::quiet_NaN();
-          continue;
-        }
-        const double start = deg_to_rad(nm.dropout_start_deg);
-        if (inc > start && rng.uniform() < (inc - start) / (deg_to_rad(nm.dropout_full_deg) - start)) {
-          out[k] = std::numeric_limits<float>::quiet_NaN();
-          continue;
-        }
-        if (nm.surface_dropout_fraction > 0) {
-          const auto& p = hit_base[k];
-          const double n = value_noise_cell(seed, p.x(), p.y(), p.z());
-          if (n < nm.surface_dropout_fraction) {
-            out[k] = std::numeric_limits<float>::quiet_NaN();
-            continue;
-          }
-        }
-        double zz = z;
-        // flying pixels at depth discontinuities
-        float other = z;
-        double jump = 0;
-        auto look = [&](std::size_t kk) {
-          const float zn = depth[kk];
-          if (std::isnan(zn)) return;
-          if (std::abs(zn - z) > jump) jump = std::abs(zn - z), other = zn;
-        };
-        if (u > 0) look(k - 1);
-        if (u + 1 < W) look(k + 1);
-        if (v > 0) look(k - W);
-        if (v + 1 < H) look(k + W);
-        if (jump > nm.discontinuity_mm && rng.uniform() < nm.flying_pixel_fraction)
-          zz += rng.uniform(0.15, 0.85) * (other - z);
-        const double sigma = nm.sigma_z_mm * std::pow(z / nm.reference_distance_mm, nm.distance_exponent) *
-                             (1.0 + nm.grazing_gain * (std::min(1.0 / c, 5.0) - 1.0));
-        zz += sigma * rng.gaussian();
-        if (rng.uniform() < nm.outlier_fraction) zz += rng.uniform(-nm.outlier_range_mm, nm.outlier_range_mm);
-        out[k] = (zz < cfg.min_range_mm || zz > cfg.max_range_mm) ? std::numeric_limits<float>::quiet_NaN()
-                                                                    : static_cast<float>(zz);
+        float zout = z;
+        if (nm.enabled && !std::isnan(z)) zout = add_noise(k, u, v, z);
+        cap.range.data[k] = zout;
+        cap.range16.data[k] = encode16(zout, enc.scale_mm, enc.offset_mm, enc.invalid_value);
+        cap.cloud.points[k] = std::isnan(zout) ? OrganizedCloud::invalid()
+                                               : Eigen::Vector3f(rays[2 * k] * zout, rays[2 * k + 1] * zout, zout);
       }
   };
-  parallel(noise_rows);
+  parallel_rows(H, threads, noise_rows);
 
-  Capture cap;
-  cap.range.width = static_cast<std::uint32_t>(W);
-  cap.range.height = static_cast<std::uint32_t>(H);
-  cap.range.data = std::move(out);
-  cap.range16 = to_range16(cap.range);
-  cap.cloud.width = cap.range.width;
-  cap.cloud.height = cap.range.height;
-  cap.cloud.points.resize(N);
-  for (std::size_t k = 0; k < N; ++k) {
-    const float z = cap.range.data[k];
-    cap.cloud.points[k] = std::isnan(z) ? OrganizedCloud::invalid()
-                                        : Eigen::Vector3f(impl_->rays[2 * k] * z, impl_->rays[2 * k + 1] * z, z);
-  }
   auto& t = cap.truth;
   t.part_id = casting.part_id();
   t.seed = seed;
@@ -341,17 +409,7 @@ RangeImage16 to_range16(const RangeImageF32& range, double scale_mm, double offs
   r.width = range.width, r.height = range.height;
   r.scale_mm = scale_mm, r.offset_mm = offset_mm, r.invalid_value = invalid_value;
   r.data.resize(range.data.size());
-  for (std::size_t k = 0; k < range.data.size(); ++k) {
-    const float z = range.data[k];
-    if (std::isnan(z)) {
-      r.data[k] = invalid_value;
-      continue;
-    }
-    const double q = std::round((z - offset_mm) / scale_mm);
-    r.data[k] = (q < 0 || q > 65535 || static_cast<std::uint16_t>(q) == invalid_value)
-                    ? invalid_value
-                    : static_cast<std::uint16_t>(q);
-  }
+  for (std::size_t k = 0; k < range.data.size(); ++k) r.data[k] = encode16(range.data[k], scale_mm, offset_mm, invalid_value);
   return r;
 }
 

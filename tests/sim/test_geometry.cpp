@@ -3,6 +3,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <unistd.h>
@@ -71,6 +72,61 @@ TEST(SimGeometry, CastingsDifferBySeedWithinTheConfiguredRanges) {
     const double hmax = region(c->material(), "riser").max_height_mm;
     EXPECT_GE(hmax, f.height_mm.min - 0.01);
   }
+}
+
+/// The pump body on a coarse grid: placement does not depend on it, and 40 castings build fast.
+fettle::config::PartRecipe coarse_pump_body() {
+  auto recipe = sim_test::pump_body();
+  recipe.geometry.surface_grid_mm = 1.0;
+  return recipe;
+}
+
+TEST(SimGeometry, PlacementVariesXYAndYawOverTheWholeConfiguredRangeAndNoTiltByDefault) {
+  auto recipe = coarse_pump_body();
+  recipe.geometry.variation.placement_tolerance_mm = 2.0;
+  recipe.geometry.variation.placement_tolerance_deg = 1.5;
+  double max_x = 0, max_y = 0, max_yaw = 0;
+  for (std::uint64_t seed = 1; seed <= 40; ++seed) {
+    const auto T = Casting::make(recipe, seed).T_base_part();
+    max_x = std::max(max_x, std::abs(T.translation().x()));
+    max_y = std::max(max_y, std::abs(T.translation().y()));
+    max_yaw = std::max(max_yaw, fettle::rad_to_deg(std::abs(std::atan2(T.linear()(1, 0), T.linear()(0, 0)))));
+    EXPECT_EQ(T.translation().z(), 0.0);
+    EXPECT_NEAR(T.linear()(2, 2), 1.0, 1e-12) << "seed " << seed << " is tilted";  // resting flat
+  }
+  EXPECT_LE(max_x, 2.0);
+  EXPECT_GT(max_x, 1.5);  // the range is used, not a fraction of it
+  EXPECT_LE(max_y, 2.0);
+  EXPECT_GT(max_y, 1.5);
+  EXPECT_LE(max_yaw, 1.5 + 1e-9);
+  EXPECT_GT(max_yaw, 1.0);
+  EXPECT_EQ(Casting::make(recipe, 3, CastingOptions{.vary = false}).T_base_part().matrix(),
+            fettle::Transform::Identity().matrix());  // the fixture's nominal placement
+}
+
+TEST(SimGeometry, PlacementTiltIsConfigurableAndThePartRestsOnItsLowestCorner) {
+  auto recipe = coarse_pump_body();
+  const auto flat = Casting::make(recipe, 5);
+  recipe.geometry.variation.placement_tilt_deg = 1.0;
+  const auto tilted = Casting::make(recipe, 5);
+  // Only the placement changes: the casting itself (material, form) is the same.
+  EXPECT_EQ(region(flat.material(), "riser").volume_mm3, region(tilted.material(), "riser").volume_mm3);
+  EXPECT_NEAR(tilted.T_base_part().translation().x(), flat.T_base_part().translation().x(), 3.0);
+  double max_tilt = 0;
+  for (std::uint64_t seed = 1; seed <= 20; ++seed) {
+    const auto c = Casting::make(recipe, seed);
+    const auto& T = c.T_base_part();
+    const double tilt = fettle::rad_to_deg(std::acos(std::clamp(T.linear()(2, 2), -1.0, 1.0)));
+    EXPECT_LE(tilt, std::sqrt(2.0) * 1.0 + 1e-9) << "seed " << seed;
+    max_tilt = std::max(max_tilt, tilt);
+    // The body's bottom corners: the lowest is on the table, none below it.
+    double low = 1e9;
+    for (const auto& b : recipe.geometry.blocks)
+      for (double x : {b.min_mm[0], b.max_mm[0]})
+        for (double y : {b.min_mm[1], b.max_mm[1]}) low = std::min(low, (T * fettle::Vec3(x, y, b.min_mm[2])).z());
+    EXPECT_NEAR(low, 0.0, 1e-9) << "seed " << seed;
+  }
+  EXPECT_GT(max_tilt, 0.5);
 }
 
 TEST(SimGeometry, GoldenTemplateHasNoMaterialAndItsSamplesLieOnItsSurface) {

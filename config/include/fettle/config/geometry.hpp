@@ -73,6 +73,7 @@ struct GeometryVariation {
   double form_deviation_mm = 0.2;        ///< amplitude of the body's smooth form deviation
   double placement_tolerance_mm = 3.0;   ///< placement on the fixture within +- this (x, y)
   double placement_tolerance_deg = 3.0;  ///< and +- this about z
+  double placement_tilt_deg = 0.0;       ///< and +- this about x and y (a chip under a locator); 0 = flat
 };
 
 struct PartGeometry {
