@@ -98,7 +98,10 @@ struct ServerOptions {
   bool maintenance = false;                     ///< initial maintenance mode
 };
 
+struct Connection;  // one connected client (server.cpp)
+
 /// The control socket server on an io_context. Not thread-safe: use it from the loop's thread.
+/// The io_context must outlive it.
 class Server {
  public:
   Server(boost::asio::io_context& io, Handler& handler, ServerOptions options);
@@ -124,6 +127,7 @@ class Server {
   json handle(const json& request);
 
  private:
+  friend struct Connection;
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
