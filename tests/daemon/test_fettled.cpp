@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -57,7 +58,7 @@ std::string cell_toml(const fs::path& dir, int plc, int robot, int spindle) {
   std::ostringstream t;
   t << "[cell]\nname = \"test-cell\"\nstate_dir = \"" << (dir / "state").string() << "\"\nworkers = 2\n"
     << "verification_scan = true\n\n[[cell.recipes]]\nplc_recipe_id = 1\nfile = \""
-    << (kSource / "config/parts/pump-body.toml").string() << "\"\n\n"
+    << (dir / "parts/pump-body.toml").string() << "\"\n\n"
     << "[logging]\nlevel = \"info\"\n\n"
     << "[plc]\naddress = \"127.0.0.1\"\nport = " << plc
     << "\nunit_id = 1\nresponse_timeout_ms = 300\npoll_period_ms = 20\nheartbeat_timeout_ms = 1000\n"
@@ -85,6 +86,12 @@ class Fettled : public ::testing::Test {
     dir_ = fs::temp_directory_path() / ("fettle-test-fettled-" + std::to_string(::getpid()));
     fs::remove_all(dir_);
     fs::create_directories(dir_);
+    // The recipe and its golden template (written by fettle-sim golden) in the test's own directory.
+    fs::create_directories(dir_ / "parts");
+    fs::copy_file(kSource / "config/parts/pump-body.toml", dir_ / "parts/pump-body.toml");
+    const std::string golden = (kBin / "fettle-sim").string() + " golden --part " + (dir_ / "parts/pump-body.toml").string() +
+                               " > " + (dir_ / "golden.log").string() + " 2>&1";
+    ASSERT_EQ(std::system(golden.c_str()), 0) << read_text(dir_ / "golden.log");
     // The devices first, on free ports; then the cell file fettled reads, with those ports.
     const auto shipped = fettle::config::load_cell(kSource / "config/cell.sim.toml");
     fettle::sim::CellSimOptions o;

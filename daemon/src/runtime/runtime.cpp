@@ -584,7 +584,12 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
           } catch (const std::exception& e) {
             if (!c->fault) self->raise(Fault{FaultCode::internal, e.what(), c->step});
           }
-          self->finish_cycle(c);
+          try {
+            self->finish_cycle(c);
+          } catch (const std::exception& e) {
+            self->log->error("cycle {}: ending its record failed: {}", c->summary.id, e.what());
+            if (self->cycle == c) self->cycle.reset();
+          }
         },
         asio::detached);
   }
