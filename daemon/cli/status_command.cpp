@@ -37,7 +37,9 @@ void print_status(const json& r, const std::filesystem::path& socket) {
   row("maintenance", r.value("maintenance", false) ? "on" : "off");
   if (r.contains("fault")) {
     const json& f = r["fault"];
-    if (f.is_object())
+    if (f.is_object() && f.contains("id"))
+      row("fault", text(f["id"]) + " (code " + text(f.value("code", json{})) + "): " + text(f.value("message", json{})));
+    else if (f.is_object())
       row("fault", text(f.value("code", json{})) + ": " + text(f.value("message", json{})));
     else
       row("fault", f.is_null() ? "none" : text(f));
