@@ -176,6 +176,8 @@ void read_part(TableReader& root, PartRecipe& part) {
             t.number("chamfer_deg", r.chamfer_deg, {5.0, 85.0});
             t.number("point_spacing_mm", r.point_spacing_mm, {0.05, 1.0});
             t.number("overlap_mm", r.overlap_mm, {0.0, 100.0});
+            t.enumeration("contact", r.contact,
+                          {{"chamfer", FlashContact::chamfer}, {"periphery", FlashContact::periphery}});
             break;
           case RegionType::riser:
             t.number("depth_per_pass_mm", r.depth_per_pass_mm, {0.01, 20.0});

@@ -14,6 +14,7 @@ namespace fettle::planning {
 namespace {
 
 constexpr std::size_t kMinRegionPoints = 20;
+constexpr double kSweepStepMm = 1.0;  ///< validation samples moves between points this finely
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};
@@ -185,13 +186,25 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
                           "no template surface inward of contact point " + std::to_string(i) + " at " + fmt(P0) +
                               " (part frame); the ellipse does not surround the part's edge");
     const Vec3 P = P0 - *s_in * n;
-    ChamferPose cp = chamfer_pose(P, n, w, R, theta);
-    if (!back_off(tool, cp.T_part_tool, in.template_sdf, cp.tool_axis, region.allowance_mm, settings.max_backoff_mm))
+    Transform T_part_tool;
+    Vec3 retreat;
+    if (region.contact == config::FlashContact::periphery) {
+      // the side of the tool against the wall at P, tool axis along w, the tool's height
+      // centred on the parting plane (a ball: its equator)
+      const double half = tool.shape == config::ToolShape::ball ? R : 0.5 * std::max(0.0, tool.length_mm);
+      T_part_tool = frame_from(P + R * n - half * w, w, n.cross(w));
+      retreat = n;
+    } else {
+      const ChamferPose cp = chamfer_pose(P, n, w, R, theta);
+      T_part_tool = cp.T_part_tool;
+      retreat = cp.tool_axis;
+    }
+    if (!back_off(tool, T_part_tool, in.template_sdf, retreat, region.allowance_mm, settings.max_backoff_mm))
       return region_error(region.name, "gouge",
                           "contact point " + std::to_string(i) + " at " + fmt(P) +
                               ": the tool cannot reach it without cutting the template (backed off " +
-                              fmt(settings.max_backoff_mm) + " mm); use a smaller tool or another chamfer_deg");
-    poses.push_back(cp.T_part_tool);
+                              fmt(settings.max_backoff_mm) + " mm); use a smaller tool, another chamfer_deg or contact");
+    poses.push_back(T_part_tool);
     normals.push_back(n);
   }
   const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
@@ -569,11 +582,27 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
     if (it == by_name.end())
       return fail("input", "the segment " + std::to_string(p.segment) + " names no planned region");
     const RegionInput& in = *it->second;
-    const Transform T_part_tool = in.T_base_part.inverse() * p.T_base_tool.to_transform();
-    const double pen = tool_penetration_mm(*in.tool, T_part_tool, in.template_sdf);
+    const Transform T_part_base = in.T_base_part.inverse();
+    const double pen = tool_penetration_mm(*in.tool, T_part_base * p.T_base_tool.to_transform(), in.template_sdf);
     if (pen > in.region->allowance_mm + 1e-6)
       return fail("gouge", "the tool cuts " + fmt(pen, 3) + " mm into the template (allowed: " +
                                fmt(in.region->allowance_mm, 3) + " mm)");
+    // The move onto this point (approach descents, lifts, leads): sampled every
+    // kSweepStepMm with the tool of this point's region.
+    if (i > 0) {
+      const Pose& a = trajectory.points[i - 1].T_base_tool;
+      const double len = (x - a.position_mm).norm();
+      const int steps = static_cast<int>(std::ceil(len / kSweepStepMm));
+      for (int k = 1; k < steps; ++k) {
+        const double f = static_cast<double>(k) / steps;
+        Pose m{a.position_mm + f * (x - a.position_mm), a.orientation.slerp(f, q).normalized()};
+        const double pm = tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf);
+        if (pm > in.region->allowance_mm + 1e-6)
+          return fail("gouge", "on the move from point " + std::to_string(i - 1) + " at " + fmt(m.position_mm) +
+                                   " mm (base) the tool cuts " + fmt(pm, 3) + " mm into the template (allowed: " +
+                                   fmt(in.region->allowance_mm, 3) + " mm)");
+      }
+    }
   }
   return {};
 }

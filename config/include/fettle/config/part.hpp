@@ -13,6 +13,11 @@ namespace fettle::config {
 
 enum class RegionType { ring_flash, riser, straight_flash, circle_flash };
 enum class ToolShape { cylinder, ball, cone };
+/// How a ring / circle flash is ground: `chamfer` = the paper's Eqs. 17-21 (tool axis at
+/// chamfer_deg from the parting plane, for a flash at an edge); `periphery` = the side of a
+/// cylindrical tool (axis along the parting plane normal) runs against the wall the fin
+/// stands out of, grinding it flush (a fin below the top of a flange or boss).
+enum class FlashContact { chamfer, periphery };
 
 const char* to_string(RegionType type);
 const char* to_string(ToolShape shape);
@@ -40,6 +45,7 @@ struct Region {
   double chamfer_deg = 45.0;
   double point_spacing_mm = 1.0;
   double overlap_mm = 5.0;
+  FlashContact contact = FlashContact::chamfer;
   // riser
   double depth_per_pass_mm = 1.0;
   double stepover_mm = 5.0;

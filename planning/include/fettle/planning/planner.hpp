@@ -98,7 +98,8 @@ double air_move_length_mm(const std::vector<RegionPlan>& plans, const std::vecto
 Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& plans,
                     const std::vector<std::size_t>& order, const PlannerSettings& settings);
 
-/// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge".
+/// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge" (at every point and along
+/// the move onto it, sampled every 1 mm: approach descents, lifts and leads included).
 /// The error names the region, the point index in the trajectory and the rule
 /// (code "planning.<rule>").
 Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs,

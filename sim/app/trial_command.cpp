@@ -1,0 +1,409 @@
+// fettle-sim trial --part FILE --seeds A-B --out DIR: the closed loop on simulated castings.
+// Per seed: scan -> locate -> extract -> plan (fettle::daemon::process, the daemon's own
+// pipeline) -> simulated grinding (each region with its tool) -> re-scan -> verify (the
+// daemon's verdict) -> evaluate against the ground truth (Zhu et al. 2022, section 4).
+// Writes DIR/seed-<n>/{evaluation.json, template.ply, roi_<region>.ply, trajectory.json},
+// DIR/summary.json, and prints the paper's Table 1/2 layout (template comparison, batch
+// consistency) with the paper's numbers beside ours.
+//
+// fettle-sim golden --part FILE [--out golden.ply]: the simulator's golden part sampled in the
+// part frame with outward normals: the template file of a recipe with [template] source =
+// "simulator" (fettle::daemon::golden_path tells where the daemon looks for it).
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <map>
+#include <memory>
+#include <set>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+
+#include "fettle/core/atomic_file.hpp"
+#include "fettle/core/cli.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/daemon/pipeline.hpp"
+#include "fettle/vision/cloud.hpp"
+#include "fettle/vision/preprocess.hpp"
+#include "sim_common.hpp"
+
+namespace {
+
+using namespace fettle::sim;  // NOLINT(google-build-using-namespace)
+namespace fs = std::filesystem;
+using json = nlohmann::ordered_json;
+
+// Acceptance (issue 5): after one cycle, per region type.
+constexpr double kMaxShareOver05Pct = 0.1;
+constexpr double kMaxShareOver03Pct = 1.0;
+constexpr double kMaxGougeMm = 0.1;
+// Zhu et al. 2022 (section 4.2): 0.14 % to 1.08 % of the points of a region more than 0.5 mm
+// from the template after grinding.
+constexpr const char* kPaperOver05 = "0.14-1.08 %";
+
+struct Args {
+  fs::path part, out;
+  std::string seeds = "1-3";
+  double golden_spacing_mm = 0.5;
+  app::ScannerOptions scanner;
+};
+
+std::pair<std::uint64_t, std::uint64_t> parse_seeds(const std::string& s) {
+  const auto dash = s.find('-');
+  try {
+    if (dash == std::string::npos) {
+      const auto a = std::stoull(s);
+      return {a, a};
+    }
+    const auto a = std::stoull(s.substr(0, dash)), b = std::stoull(s.substr(dash + 1));
+    if (b < a) throw std::invalid_argument("descending");
+    return {a, b};
+  } catch (const std::exception&) {
+    throw fettle::UserError("--seeds '" + s + "': expected A-B with A <= B (e.g. 1-50) or one number");
+  }
+}
+
+/// The simulator's golden part (part frame, outward normals) as a vision cloud.
+fettle::vision::Cloud golden_cloud(const fettle::config::PartRecipe& recipe, double spacing_mm) {
+  const auto golden = Casting::golden(recipe, 0);
+  fettle::vision::Cloud c;
+  for (const auto& s : golden.sample_golden_surface(spacing_mm)) {
+    c.points.push_back(s.position_mm);
+    c.normals.push_back(s.normal);
+  }
+  return c;
+}
+
+std::vector<fettle::daemon::View> to_views(const std::vector<Capture>& captures) {
+  std::vector<fettle::daemon::View> views;
+  for (const auto& c : captures) views.push_back({c.cloud, c.truth.T_base_camera, c.truth.slide_position_mm});
+  return views;
+}
+
+std::vector<Capture> scan_all(const Scanner& scanner, const Casting& casting, std::size_t view_offset) {
+  std::vector<Capture> out;
+  const auto& pos = scanner.config().photo_positions_mm;
+  for (std::size_t v = 0; v < pos.size(); ++v) out.push_back(scanner.capture(casting, pos[v], view_offset + v));
+  return out;
+}
+
+/// The re-scan as the vision stage sees it (all views in the part frame by the ground truth,
+/// voxel 0.25 mm, statistical outlier removal with the recipe's settings), as the paper
+/// evaluates preprocessed clouds. Also the raw points (part frame).
+struct EvalPoints {
+  std::vector<Eigen::Vector3f> raw, clean;
+};
+
+EvalPoints eval_points(const fettle::config::PartRecipe& recipe, const std::vector<Capture>& captures) {
+  EvalPoints e;
+  for (const auto& c : captures) {
+    const Eigen::Isometry3f T = (c.truth.T_base_part.inverse() * c.truth.T_base_camera).cast<float>();
+    for (const auto& p : c.cloud.points)
+      if (p.allFinite()) e.raw.push_back(T * p);
+  }
+  fettle::vision::Cloud cloud;
+  cloud.points = e.raw;
+  cloud = fettle::vision::voxel_downsample(cloud, 0.25);
+  cloud = fettle::vision::remove_statistical_outliers(cloud, recipe.vision.outlier_neighbours, recipe.vision.outlier_std_ratio);
+  e.clean = std::move(cloud.points);
+  return e;
+}
+
+bool in_roi(const fettle::config::Region& r, const Eigen::Vector3f& p) {
+  for (int k = 0; k < 3; ++k)
+    if (std::abs(p[k] - r.roi_center_mm[static_cast<std::size_t>(k)]) > 0.5 * r.roi_size_mm[static_cast<std::size_t>(k)])
+      return false;
+  return true;
+}
+
+double pct(std::size_t k, std::size_t n) { return n == 0 ? 0.0 : 100.0 * static_cast<double>(k) / static_cast<double>(n); }
+
+json region_eval_json(const RegionEvaluation& r) {
+  return {{"roi_points", r.roi_points},
+          {"over_0_3", r.over_0_3},
+          {"over_0_4", r.over_0_4},
+          {"over_0_5", r.over_0_5},
+          {"share_over_0_3_pct", pct(r.over_0_3, r.roi_points)},
+          {"share_over_0_4_pct", pct(r.over_0_4, r.roi_points)},
+          {"share_over_0_5_pct", pct(r.over_0_5, r.roi_points)},
+          {"max_residual_mm", r.max_residual_mm}};
+}
+
+/// Per region type, accumulated over seeds.
+struct TypeStats {
+  std::size_t seeds = 0, roi_points = 0, over_0_3 = 0, over_0_4 = 0, over_0_5 = 0;
+  double worst_03_pct = 0.0, worst_05_pct = 0.0, max_residual_mm = 0.0;
+  void add(const RegionEvaluation& r) {
+    ++seeds;
+    roi_points += r.roi_points;
+    over_0_3 += r.over_0_3;
+    over_0_4 += r.over_0_4;
+    over_0_5 += r.over_0_5;
+    worst_03_pct = std::max(worst_03_pct, pct(r.over_0_3, r.roi_points));
+    worst_05_pct = std::max(worst_05_pct, pct(r.over_0_5, r.roi_points));
+    max_residual_mm = std::max(max_residual_mm, r.max_residual_mm);
+  }
+};
+
+std::string table(const std::string& title, const std::map<std::string, TypeStats>& stats, bool paper_column) {
+  std::ostringstream s;
+  char line[320];
+  s << title << "\n";
+  std::snprintf(line, sizeof line, "  %-15s %6s %12s %9s %9s %9s %11s %11s %10s%s\n", "region type", "seeds",
+                "ROI points", "> 0.3 %", "> 0.4 %", "> 0.5 %", "worst>0.3 %", "worst>0.5 %", "max mm",
+                paper_column ? "  paper > 0.5 mm" : "");
+  s << line;
+  for (const auto& [type, t] : stats) {
+    std::snprintf(line, sizeof line, "  %-15s %6zu %12zu %9.3f %9.3f %9.3f %11.3f %11.3f %10.3f%s%s\n", type.c_str(),
+                  t.seeds, t.roi_points / std::max<std::size_t>(1, t.seeds), pct(t.over_0_3, t.roi_points),
+                  pct(t.over_0_4, t.roi_points), pct(t.over_0_5, t.roi_points), t.worst_03_pct, t.worst_05_pct,
+                  t.max_residual_mm, paper_column ? "  " : "", paper_column ? kPaperOver05 : "");
+    s << line;
+  }
+  return s.str();
+}
+
+void save_points(const fs::path& file, const std::vector<Eigen::Vector3f>& pts, const fettle::Transform& T) {
+  fettle::vision::Cloud c;
+  c.points.reserve(pts.size());
+  const Eigen::Isometry3f Tf = T.cast<float>();
+  for (const auto& p : pts) c.points.push_back(Tf * p);
+  fettle::vision::save_ply(file, c);
+}
+
+int trial(const Args& a) {
+  const auto [first, last] = parse_seeds(a.seeds);
+  const auto recipe = fettle::config::load_part(a.part);
+  fettle::config::CellConfig cell;
+  if (!a.scanner.cell.empty()) cell = fettle::config::load_cell(a.scanner.cell);
+  CellLimits limits;
+  const Scanner scanner(app::scanner_config(a.scanner, &limits));
+  std::error_code ec;
+  fs::create_directories(a.out, ec);
+  if (ec) throw fettle::UserError(a.out.string() + ": cannot create the output directory: " + ec.message());
+
+  auto t0 = std::chrono::steady_clock::now();
+  fettle::daemon::LoadOptions lo;
+  lo.golden = golden_cloud(recipe, a.golden_spacing_mm);
+  lo.golden_identity = "fettle-sim golden " + recipe.id + " spacing " + std::to_string(a.golden_spacing_mm);
+  const auto loaded = fettle::daemon::load_recipe(recipe, lo);
+  std::fprintf(stderr, "recipe %s loaded in %.1f s (template %zu points%s)\n", recipe.id.c_str(),
+               app::seconds_since(t0), loaded.templ.whole().fine().size(), loaded.template_from_cache ? ", cached" : "");
+  const auto golden_samples = Casting::golden(recipe, 0).sample_golden_surface(a.golden_spacing_mm);
+
+  std::map<std::string, TypeStats> t1, t2;  // template comparison, batch consistency
+  std::optional<Casting> reference;         // the first ground casting (batch consistency)
+  std::size_t failures = 0, done = 0;
+  double max_gouge = 0.0;
+  std::vector<double> plan_ms;
+  json seeds_json = json::array();
+  const std::size_t count = last - first + 1;
+  for (std::uint64_t seed = first; seed <= last; ++seed, ++done) {
+    const auto ts = std::chrono::steady_clock::now();
+    const fs::path dir = a.out / ("seed-" + std::to_string(seed));
+    fs::create_directories(dir, ec);
+    json sj;
+    sj["seed"] = seed;
+    std::fprintf(stderr, "[%zu/%zu] seed %llu: scan", done + 1, count, static_cast<unsigned long long>(seed));
+    Casting casting = Casting::make(recipe, seed);
+    const auto captures = scan_all(scanner, casting, 0);
+    std::fprintf(stderr, ", process");
+    auto out = fettle::daemon::process(loaded, cell, to_views(captures));
+    if (!out) {
+      std::fprintf(stderr, ": FAILED: %s\n", out.error().message.c_str());
+      sj["error"] = out.error().message;
+      sj["code"] = out.error().code;
+      (void)fettle::write_file_atomic(dir / "evaluation.json", sj.dump(2) + "\n");
+      seeds_json.push_back(sj);
+      ++failures;
+      continue;
+    }
+    double pms = 0.0;
+    for (const auto& st : out->timings)
+      if (st.step == "plan") pms = st.ms;
+    plan_ms.push_back(pms);
+    if (auto st = fettle::planning::write_trajectory_json(dir / "trajectory.json", out->trajectory); !st)
+      throw fettle::UserError(st.error().message);
+
+    // Grind region by region, each with its own tool.
+    std::fprintf(stderr, ", grind");
+    std::map<std::string, std::vector<Gouge>> gouges_by_region;
+    std::vector<Gouge> gouges;
+    bool grind_failed = false;
+    std::size_t i = 0;
+    const auto& traj = out->trajectory;
+    while (i < traj.points.size()) {
+      const auto region_of = [&](std::size_t k) { return traj.segment_regions.at(static_cast<std::size_t>(traj.points[k].segment)); };
+      const std::string name = region_of(i);
+      fettle::Trajectory sub;
+      sub.part_id = traj.part_id;
+      sub.segment_regions = traj.segment_regions;
+      while (i < traj.points.size() && region_of(i) == name) sub.points.push_back(traj.points[i++]);
+      const auto& region = *std::find_if(recipe.regions.begin(), recipe.regions.end(),
+                                         [&](const fettle::config::Region& r) { return r.name == name; });
+      GrindOptions go;
+      go.tool = find_tool(recipe, region.tool);
+      go.noise_seed = seed * 1000 + i;
+      auto g = grind(casting, sub, go, limits);
+      if (!g) {
+        std::fprintf(stderr, ": grinding %s FAILED: %s\n", name.c_str(), g.error().message.c_str());
+        sj["error"] = "grinding " + name + ": " + g.error().message;
+        grind_failed = true;
+        break;
+      }
+      for (const auto& gg : g->gouges) {
+        gouges_by_region[name].push_back(gg);
+        gouges.push_back(gg);
+      }
+    }
+    if (grind_failed) {
+      (void)fettle::write_file_atomic(dir / "evaluation.json", sj.dump(2) + "\n");
+      seeds_json.push_back(sj);
+      ++failures;
+      continue;
+    }
+
+    std::fprintf(stderr, ", re-scan");
+    const auto rescan = scan_all(scanner, casting, 100);
+    std::fprintf(stderr, ", verify");
+    const auto ver = fettle::daemon::verify(loaded, cell, to_views(rescan));
+    std::fprintf(stderr, ", evaluate");
+    const auto pts = eval_points(recipe, rescan);
+    const auto golden_distance = [&](const fettle::Vec3& p) { return casting.distance_to_golden_mm(p); };
+    if (!reference) reference = casting;
+    const auto ref_distance = [&](const fettle::Vec3& p) { return reference->distance_to_surface_mm(p); };
+
+    sj["T_base_part_true"] = {casting.T_base_part().translation().x(), casting.T_base_part().translation().y(),
+                              casting.T_base_part().translation().z()};
+    json tj = json::object();
+    for (const auto& st : out->timings) tj[st.step + "_ms"] = st.ms;
+    sj["timings"] = tj;
+    sj["verdict"] = ver ? fettle::daemon::to_string(ver->verdict) : "error";
+    if (!ver) sj["verify_error"] = ver.error().message;
+    json regions = json::array();
+    double seed_gouge = 0.0;
+    bool seed_ok = true;
+    for (std::size_t r = 0; r < recipe.regions.size(); ++r) {
+      const auto& region = recipe.regions[r];
+      const auto e1 = evaluate_region(region, pts.clean, golden_distance);
+      const auto e1raw = evaluate_region(region, pts.raw, golden_distance);
+      const auto e2 = evaluate_region(region, pts.clean, ref_distance);
+      const std::string type = fettle::config::to_string(region.type);
+      t1[type].add(e1);
+      t2[type].add(e2);
+      double gmax = 0.0;
+      for (const auto& g : gouges_by_region[region.name]) gmax = std::max(gmax, g.depth_mm);
+      seed_gouge = std::max(seed_gouge, gmax);
+      seed_ok = seed_ok && pct(e1.over_0_5, e1.roi_points) <= kMaxShareOver05Pct &&
+                pct(e1.over_0_3, e1.roi_points) <= kMaxShareOver03Pct;
+      json rj;
+      rj["name"] = region.name;
+      rj["type"] = type;
+      rj["template_comparison"] = region_eval_json(e1);
+      rj["template_comparison_raw"] = region_eval_json(e1raw);
+      rj["batch_consistency"] = region_eval_json(e2);
+      rj["gouges"] = gouges_by_region[region.name].size();
+      rj["max_gouge_depth_mm"] = gmax;
+      for (const auto& m : out->regions)
+        if (m.name == region.name)
+          rj["plan"] = {{"excess_points", m.excess_points},
+                        {"excess_volume_mm3", m.excess_volume_mm3},
+                        {"trajectory_points", m.trajectory_points},
+                        {"plan_ms", m.plan_ms}};
+      if (ver)
+        for (const auto& v : ver->regions)
+          if (v.name == region.name)
+            rj["verify"] = {{"verdict", fettle::daemon::to_string(v.verdict)},
+                            {"reason", v.reason},
+                            {"roi_points", v.roi_points},
+                            {"share_over_0_3_pct", v.share_over_0_3_pct},
+                            {"share_over_0_5_pct", v.share_over_0_5_pct},
+                            {"max_residual_mm", v.max_residual_mm}};
+      regions.push_back(rj);
+      std::vector<Eigen::Vector3f> roi;
+      for (const auto& p : pts.clean)
+        if (in_roi(region, p)) roi.push_back(p);
+      save_points(dir / ("roi_" + region.name + ".ply"), roi, casting.T_base_part());
+    }
+    max_gouge = std::max(max_gouge, seed_gouge);
+    sj["regions"] = regions;
+    sj["gouges"] = gouges.size();
+    sj["max_gouge_depth_mm"] = seed_gouge;
+    sj["frame"] = "base (template.ply and roi_*.ply: robot base frame, mm)";
+    std::vector<Eigen::Vector3f> tpl;
+    tpl.reserve(golden_samples.size());
+    for (const auto& s : golden_samples) tpl.push_back(s.position_mm);
+    save_points(dir / "template.ply", tpl, casting.T_base_part());
+    if (auto st = fettle::write_file_atomic(dir / "evaluation.json", sj.dump(2) + "\n"); !st)
+      throw fettle::UserError(st.error().message);
+    seeds_json.push_back(sj);
+    std::fprintf(stderr, ": %s, verdict %s, plan %.1f ms, max gouge %.3f mm (%.1f s)\n",
+                 seed_ok && seed_gouge <= kMaxGougeMm ? "ok" : "OUT OF TOLERANCE",
+                 ver ? fettle::daemon::to_string(ver->verdict) : "error", pms, seed_gouge, app::seconds_since(ts));
+  }
+
+  // Summary: the paper's tables.
+  std::string report = table("Table 1 - template comparison (after one cycle; shares of the ROI points, mean over seeds)", t1, true);
+  report += table("Table 2 - batch consistency (each ground casting against the first one)", t2, false);
+  bool pass = failures == 0 && max_gouge <= kMaxGougeMm;
+  for (const auto& [type, t] : t1) pass = pass && t.worst_05_pct <= kMaxShareOver05Pct && t.worst_03_pct <= kMaxShareOver03Pct;
+  std::sort(plan_ms.begin(), plan_ms.end());
+  char line[256];
+  std::snprintf(line, sizeof line,
+                "seeds %llu-%llu: %zu failed; max gouge %.3f mm; planning median %.1f ms, max %.1f ms\n"
+                "acceptance (every region type: worst seed <= %.1f %% > 0.5 mm and <= %.1f %% > 0.3 mm; gouges <= %.2f mm): %s\n",
+                static_cast<unsigned long long>(first), static_cast<unsigned long long>(last), failures, max_gouge,
+                plan_ms.empty() ? 0.0 : plan_ms[plan_ms.size() / 2], plan_ms.empty() ? 0.0 : plan_ms.back(),
+                kMaxShareOver05Pct, kMaxShareOver03Pct, kMaxGougeMm, pass ? "PASS" : "FAIL");
+  report += line;
+  std::printf("%s", report.c_str());
+  json summary;
+  summary["part_id"] = recipe.id;
+  summary["seeds"] = {first, last};
+  summary["failures"] = failures;
+  summary["max_gouge_depth_mm"] = max_gouge;
+  summary["acceptance"] = pass;
+  json types = json::object();
+  for (const auto& [type, t] : t1)
+    types[type] = {{"seeds", t.seeds},
+                   {"roi_points", t.roi_points},
+                   {"share_over_0_3_pct", pct(t.over_0_3, t.roi_points)},
+                   {"share_over_0_5_pct", pct(t.over_0_5, t.roi_points)},
+                   {"worst_share_over_0_3_pct", t.worst_03_pct},
+                   {"worst_share_over_0_5_pct", t.worst_05_pct},
+                   {"max_residual_mm", t.max_residual_mm}};
+  summary["template_comparison"] = types;
+  summary["seed_results"] = seeds_json;
+  (void)fettle::write_file_atomic(a.out / "summary.json", summary.dump(2) + "\n");
+  (void)fettle::write_file_atomic(a.out / "summary.txt", report);
+  return pass ? fettle::exit_code::ok : fettle::exit_code::failure;
+}
+
+int golden(const fs::path& part, fs::path out, double spacing_mm) {
+  const auto recipe = fettle::config::load_part(part);
+  if (out.empty()) out = fettle::daemon::golden_path(recipe);
+  const auto c = golden_cloud(recipe, spacing_mm);
+  fettle::vision::save_ply(out, c);
+  std::printf("%s: %zu golden surface points with normals (part frame, mm)\n", out.string().c_str(), c.size());
+  return 0;
+}
+
+FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common&) {
+  auto a = std::make_shared<Args>();
+  auto* cmd = app.add_subcommand("trial", "Closed loop per seed: scan, plan, grind, re-scan, evaluate; the paper's tables");
+  cmd->add_option("--part", a->part, "Part recipe with a [geometry] table")->required()->check(CLI::ExistingFile);
+  cmd->add_option("--seeds", a->seeds, "Castings A-B (e.g. 1-50)")->required();
+  cmd->add_option("--out", a->out, "Output directory (seed-<n>/evaluation.json, template.ply, roi_<region>.ply)")->required();
+  app::add_scanner_options(cmd, a->scanner);
+  auto g = std::make_shared<std::pair<fs::path, fs::path>>();
+  auto spacing = std::make_shared<double>(0.5);
+  auto* gcmd = app.add_subcommand("golden", "Write the golden template (part frame, normals) a recipe with [template] source = \"simulator\" needs");
+  gcmd->add_option("--part", g->first, "Part recipe with a [geometry] table")->required()->check(CLI::ExistingFile);
+  gcmd->add_option("--out", g->second, "PLY file (default: <recipe dir>/<recipe stem>.golden.ply or [template] scan)");
+  gcmd->add_option("--spacing-mm", *spacing, "Sample spacing")->check(CLI::Range(0.05, 10.0));
+  return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{
+      {cmd, [a] { return trial(*a); }}, {gcmd, [g, spacing] { return golden(g->first, g->second, *spacing); }}};
+});
+
+}  // namespace
