@@ -113,6 +113,32 @@ TEST_F(CameraSim, SlidePositionMovesTheScene) {
   EXPECT_NEAR(z_front, 640.0, 1.0);
 }
 
+TEST_F(CameraSim, CaptureIntoAReusedCloudKeepsItsStorageAndSeesTheNewScene) {
+  fd::Camera camera(driver_options());
+  fd::CameraCapture c;
+  ASSERT_TRUE(camera.capture(c).ok());
+  EXPECT_GT(check_geometry(c.cloud, scene_, 0.0), 2000u);
+  const auto* storage = c.cloud.points.data();
+  const auto first_frame = c.frame_id;
+  sim_->set_slide_position_mm(40.0);
+  auto s = camera.capture(c);
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_EQ(c.cloud.points.data(), storage);  // no new allocation for the second frame
+  EXPECT_NE(c.frame_id, first_frame);
+  EXPECT_EQ(c.stats.attempts, 1);
+  EXPECT_GT(check_geometry(c.cloud, scene_, 40.0), 2000u);
+  EXPECT_NEAR(c.cloud.points[120 * 320 + static_cast<int>(159.5 - 40.0 * 372.0 / 640.0)].z(), 640.0, 1.0);
+}
+
+TEST_F(CameraSim, HeartbeatTimeoutFromTheOptionsIsSetOnTheCamera) {
+  auto o = driver_options();
+  o.heartbeat_timeout_ms = 2500;
+  fd::Camera camera(o);
+  EXPECT_EQ(camera.info().heartbeat_timeout_ms, 2500);
+  EXPECT_THAT(camera.info().to_string(), HasSubstr("2500 ms timeout"));
+  EXPECT_TRUE(camera.capture().ok());
+}
+
 TEST_F(CameraSim, FloatRangeMapAndPointCloudFormatsDecodeTheSameScene) {
   for (const char* format : {"Coord3D_C32f", "Coord3D_ABC32f"}) {
     auto o = driver_options();

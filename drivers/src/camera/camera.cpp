@@ -112,6 +112,7 @@ std::string CameraInfo::to_string() const {
   for (const auto& f : pixel_formats) s << " " << f;
   s << "\npacket size:   " << packet_size_bytes << " bytes";
   if (exposure_us > 0.0) s << "\nexposure:      " << exposure_us << " us";
+  if (heartbeat_timeout_ms > 0) s << "\nheartbeat:     " << heartbeat_timeout_ms << " ms timeout";
   s << "\nScan3d:        " << (scan3d_from_camera ? "yes" : "no (not a GenICam SFNC 3D camera)");
   if (scan3d_from_camera) {
     s << "\n  scale:       " << scan3d.scale << "\n  offset:      " << scan3d.offset << "\n  unit:        "
@@ -232,6 +233,15 @@ struct Camera::Impl {
       arv_camera_gv_set_packet_size(c, options.packet_size_bytes, &e);
       if (e != nullptr) fail("cannot set the packet size to " + std::to_string(options.packet_size_bytes), e);
     }
+    if (options.heartbeat_timeout_ms > 0) {
+      if (implemented("GevHeartbeatTimeout")) {
+        arv_camera_set_integer(c, "GevHeartbeatTimeout", options.heartbeat_timeout_ms, &e);
+        if (e != nullptr)
+          fail("cannot set GevHeartbeatTimeout to " + std::to_string(options.heartbeat_timeout_ms) + " ms", e);
+      } else {
+        logger()->warn("camera {}: has no GevHeartbeatTimeout feature; heartbeat_timeout_ms ignored", address);
+      }
+    }
     if (options.exposure_us > 0.0) {
       if (arv_camera_is_exposure_time_available(c, &e) != FALSE) {
         arv_camera_set_exposure_time(c, options.exposure_us, &e);
@@ -266,6 +276,8 @@ struct Camera::Impl {
     info.packet_size_bytes = arv_camera_gv_get_packet_size(c, &e);
     g_clear_error(&e);
     if (arv_camera_is_exposure_time_available(c, &e) != FALSE) info.exposure_us = arv_camera_get_exposure_time(c, &e);
+    g_clear_error(&e);
+    if (implemented("GevHeartbeatTimeout")) info.heartbeat_timeout_ms = arv_camera_get_integer(c, "GevHeartbeatTimeout", &e);
     g_clear_error(&e);
 
     read_scan3d();
@@ -380,7 +392,7 @@ struct Camera::Impl {
     }
   }
 
-  Result<CameraCapture> capture() {
+  Status capture(CameraCapture& out) {
     CaptureStats st;
     if (control_lost) {
       if (auto s = recreate(); !s) return s.error();
@@ -435,7 +447,6 @@ struct Camera::Impl {
                      static_cast<std::uint32_t>(arv_buffer_get_image_width(b)),
                      static_cast<std::uint32_t>(arv_buffer_get_image_height(b)), static_cast<const std::byte*>(data),
                      size};
-      CameraCapture out;
       out.frame_id = arv_buffer_get_frame_id(b);
       out.timestamp_ns = arv_buffer_get_timestamp(b);
       out.pixel_format = frame.pixel_format;
@@ -453,7 +464,7 @@ struct Camera::Impl {
           "packets {}, underruns {}",
           address, out.frame_id, frame.width, frame.height, st.wait_ms, st.decode_ms, st.attempts, st.resent_packets,
           st.missing_packets, st.underruns);
-      return out;
+      return {};
     }
     finish_stats(st);
     logger()->error("camera {}: fault after {} attempts (last: {}); resent packets {}, missing packets {}, underruns {}",
@@ -468,7 +479,12 @@ struct Camera::Impl {
 Camera::Camera(CameraOptions options) : impl_(std::make_unique<Impl>(std::move(options))) {}
 Camera::~Camera() = default;
 const CameraInfo& Camera::info() const { return impl_->info; }
-Result<CameraCapture> Camera::capture() { return impl_->capture(); }
+Result<CameraCapture> Camera::capture() {
+  CameraCapture out;
+  if (auto s = impl_->capture(out); !s) return s.error();
+  return out;
+}
+Status Camera::capture(CameraCapture& out) { return impl_->capture(out); }
 bool Camera::control_lost() const { return impl_->control_lost; }
 int Camera::reconnects() const { return impl_->reconnects; }
 

@@ -254,7 +254,13 @@ const char* const kCameraGenicamXml = R"xml(<?xml version="1.0" encoding="utf-8"
 
   <Category Name="TransportLayerControl" NameSpace="Standard">
     <pFeature>PayloadSize</pFeature>
+    <pFeature>GevHeartbeatTimeout</pFeature>
   </Category>
+  <IntReg Name="GevHeartbeatTimeout" NameSpace="Standard">
+    <ToolTip>Control channel heartbeat timeout (ms), GigE Vision bootstrap register 0x0938</ToolTip>
+    <Address>0x0938</Address><Length>4</Length><AccessMode>RW</AccessMode><pPort>Device</pPort>
+    <Sign>Unsigned</Sign><Endianess>BigEndian</Endianess>
+  </IntReg>
   <IntSwissKnife Name="PayloadSize" NameSpace="Standard">
     <pVariable Name="WIDTH">Width</pVariable>
     <pVariable Name="HEIGHT">Height</pVariable>

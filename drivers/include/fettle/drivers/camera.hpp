@@ -50,6 +50,7 @@ struct CameraInfo {
   std::vector<std::string> pixel_formats;  ///< the formats it offers
   std::uint32_t packet_size_bytes = 0;
   double exposure_us = 0.0;  ///< 0 if the camera has no exposure feature
+  std::int64_t heartbeat_timeout_ms = 0;  ///< GevHeartbeatTimeout; 0 if the camera has no such feature
   Scan3dParameters scan3d;
   bool scan3d_from_camera = false;  ///< the camera has Scan3d features
   std::string intrinsics_source;    ///< "camera", "calibration" or "none"
@@ -89,6 +90,9 @@ class Camera {
   [[nodiscard]] const CameraInfo& info() const;
   /// One frame per call: trigger, wait up to frame_timeout_ms, retry up to `retries` times.
   Result<CameraCapture> capture();
+  /// The same, decoding into `out` (its cloud's storage is reused: no 3.2 MP allocation per
+  /// frame on the cycle path). On error `out` holds no valid frame.
+  Status capture(CameraCapture& out);
   /// True once Aravis signalled control-lost and the camera was not recreated yet.
   [[nodiscard]] bool control_lost() const;
   /// How many times the camera was torn down and recreated.
