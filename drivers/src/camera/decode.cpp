@@ -82,8 +82,11 @@ Status decode_frame(const RawFrame& frame, const Scan3dParameters& p, OrganizedC
                  "unsupported pixel format " + format +
                      ": the camera must send 3D data as Coord3D_C16, Coord3D_C32f or Coord3D_ABC32f "
                      "(set [camera] pixel_format or the camera's PixelFormat)");
-  const std::size_t n = std::size_t{frame.width} * frame.height;
-  const std::size_t needed = n * bytes_per_pixel(frame.pixel_format);
+  const std::size_t n = std::size_t{frame.width} * frame.height;  // < 2^64: two 32-bit factors
+  const std::size_t bpp = bytes_per_pixel(frame.pixel_format);
+  // A leader with absurd sizes must not overflow the byte count (and then pass the size check).
+  const bool overflow = n > std::numeric_limits<std::size_t>::max() / bpp;
+  const std::size_t needed = overflow ? std::numeric_limits<std::size_t>::max() : n * bpp;
   if (frame.width == 0 || frame.height == 0 || frame.data == nullptr || frame.size < needed)
     return error("camera.bad_frame", "frame of " + std::to_string(frame.size) + " bytes is too small for " +
                                          std::to_string(frame.width) + "x" + std::to_string(frame.height) +
