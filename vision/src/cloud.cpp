@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -40,6 +41,132 @@ std::string lower_extension(const std::filesystem::path& file) {
   return ext;
 }
 
+// Fewest bytes one value of a PLY/PCD type takes in the file: binary, its size; ASCII, a digit
+// and a separator.
+std::uint64_t min_value_bytes(bool ascii, std::uint64_t binary_size) { return ascii ? 2 : binary_size; }
+
+std::uint64_t ply_type_size(const std::string& t) {
+  if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
+  if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
+  if (t == "double" || t == "float64") return 8;
+  return 4;  // int, uint, float and their sized names
+}
+
+// Checks that the element / point counts a PLY or PCD header claims fit in the file, before
+// PCL allocates memory for them (a header claiming billions of points would otherwise make it
+// allocate gigabytes), and that there is a header at all. Returns the problem, or an empty
+// string. Counts that cannot be read are left to PCL's own parser.
+std::string implausible_header(const std::filesystem::path& file, bool pcd) {
+  std::ifstream in(file, std::ios::binary);
+  std::error_code ec;
+  const std::uint64_t size = std::filesystem::file_size(file, ec);
+  if (!in || ec) return {};
+  std::string line;
+  std::uint64_t needed = 0;  // bytes the claimed data needs at least
+  std::string claimed;       // what the header claims, for the message
+  bool ascii = false;
+  bool compressed = false;
+  bool header_complete = false;
+  if (pcd) {
+    std::vector<std::uint64_t> sizes, counts;
+    std::vector<std::string> fields, types;
+    std::uint64_t width = 0, height = 1, points = 0;
+    auto read_u64 = [](std::istringstream& w, std::uint64_t& out) {
+      std::string t;
+      w >> t;
+      if (t.empty() || t.size() > 19 || t.find_first_not_of("0123456789") != std::string::npos) return;
+      out = std::stoull(t);
+    };
+    while (std::getline(in, line)) {
+      std::istringstream w(line);
+      std::string key;
+      w >> key;
+      if (key == "FIELDS" || key == "TYPE") {
+        auto& v = key == "FIELDS" ? fields : types;
+        for (std::string x; w >> x;) v.push_back(x);
+      } else if (key == "SIZE" || key == "COUNT") {
+        auto& v = key == "SIZE" ? sizes : counts;
+        for (std::uint64_t x = 0; w >> x;) v.push_back(std::min<std::uint64_t>(x, 1U << 20));
+      } else if (key == "WIDTH") {
+        read_u64(w, width);
+      } else if (key == "HEIGHT") {
+        read_u64(w, height);
+      } else if (key == "POINTS") {
+        read_u64(w, points);
+      } else if (key == "DATA") {
+        std::string format;
+        w >> format;
+        ascii = format == "ascii";
+        compressed = format == "binary_compressed";
+        header_complete = true;
+        break;
+      }
+    }
+    // PCL 1.13 crashes on a header whose FIELDS, SIZE, TYPE and COUNT do not agree.
+    const bool sizes_ok = std::all_of(sizes.begin(), sizes.end(), [](auto x) { return x == 1 || x == 2 || x == 4 || x == 8; });
+    const bool types_ok =
+        std::all_of(types.begin(), types.end(), [](const std::string& t) { return t == "I" || t == "U" || t == "F"; });
+    if (header_complete && (fields.empty() || sizes.size() != fields.size() || types.size() != fields.size() ||
+                            (!counts.empty() && counts.size() != fields.size()) || !sizes_ok || !types_ok))
+      return "the PCD header's FIELDS, SIZE, TYPE and COUNT lines do not describe the same fields "
+             "(SIZE 1, 2, 4 or 8; TYPE I, U or F)";
+    std::uint64_t step = 0;
+    for (std::size_t i = 0; i < sizes.size(); ++i)
+      step += min_value_bytes(ascii, sizes[i]) * (i < counts.size() ? counts[i] : 1);
+    width = std::min<std::uint64_t>(width, 1ULL << 32);
+    height = std::min<std::uint64_t>(height, 1ULL << 32);
+    const std::uint64_t n = std::max(points, width * height);
+    needed = n > 0 && step > (1ULL << 62) / n ? (1ULL << 62) : n * step;
+    claimed = std::to_string(n) + " points";
+  } else {
+    std::uint64_t count = 0, element_bytes = 0;
+    auto close_element = [&] {
+      const std::uint64_t add = count > 0 && element_bytes > (1ULL << 62) / count ? (1ULL << 62) : count * element_bytes;
+      needed = std::min<std::uint64_t>(needed + add, 1ULL << 62);
+      count = element_bytes = 0;
+    };
+    if (!std::getline(in, line) || line.rfind("ply", 0) != 0) return "not a PLY file (it does not start with 'ply')";
+    while (std::getline(in, line)) {
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      std::istringstream w(line);
+      std::string key;
+      w >> key;
+      if (key == "format") {
+        std::string format;
+        w >> format;
+        ascii = format == "ascii";
+      } else if (key == "element") {
+        close_element();
+        std::string name, t;
+        w >> name >> t;
+        if (!t.empty() && t.size() <= 19 && t.find_first_not_of("0123456789") == std::string::npos) count = std::stoull(t);
+        if (name == "vertex") claimed = t + " vertices";
+      } else if (key == "property") {
+        std::string type;
+        w >> type;
+        if (type == "list") w >> type;  // a list has at least its count
+        element_bytes += min_value_bytes(ascii, ply_type_size(type));
+      } else if (key == "end_header") {
+        header_complete = true;
+        break;
+      }
+    }
+    close_element();
+  }
+  // (PCL 1.13's PCDReader crashes on a file without a header, e.g. an empty one.)
+  if (!header_complete || !in)
+    return pcd ? "no PCD header (no DATA line): not a PCD file, or truncated"
+               : "no PLY header (no end_header line): not a PLY file, or truncated";
+  const auto header_end = static_cast<std::uint64_t>(in.tellg());
+  const std::uint64_t data = size > header_end ? size - header_end : 0;
+  // LZF (binary_compressed PCD) shrinks data at most about 100 times.
+  const std::uint64_t capacity = compressed ? data * 100 : data;
+  if (needed <= capacity) return {};
+  return "the header claims " + claimed + " (at least " + std::to_string(needed) + " bytes" +
+         (compressed ? " uncompressed" : "") + ") but the file holds " + std::to_string(data) +
+         " bytes of data: truncated or corrupt";
+}
+
 }  // namespace
 
 Cloud load_cloud(const std::filesystem::path& file) {
@@ -47,6 +174,9 @@ Cloud load_cloud(const std::filesystem::path& file) {
   if (!std::filesystem::is_regular_file(file, ec))
     throw UserError(file.string() + ": no such file (expected a PLY or PCD point cloud)");
   const std::string ext = lower_extension(file);
+  if (ext == ".pcd" || ext == ".ply") {
+    if (const auto why = implausible_header(file, ext == ".pcd"); !why.empty()) throw UserError(file.string() + ": " + why);
+  }
   pcl::PCLPointCloud2 blob;
   int rc = -1;
   if (ext == ".pcd") {

@@ -1,0 +1,154 @@
+// Bad point-cloud files for load_cloud (PLY and PCD through PCL's readers): NaN / Inf, no
+// points, headers that lie about the point count, headers claiming billions of points. Every
+// one is a UserError naming the file, or the finite points that are really there; none may
+// crash or allocate gigabytes (checked in a child process with a memory cap).
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "../support/child_process.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/vision/cloud.hpp"
+
+using fettle::UserError;
+using fettle::test::ChildOutcome;
+using fettle::test::run_in_child;
+using fettle::vision::Cloud;
+using fettle::vision::load_cloud;
+using ::testing::HasSubstr;
+namespace fs = std::filesystem;
+
+namespace {
+
+class CloudBadInput : public ::testing::Test {
+ protected:
+  fs::path write(const std::string& name, const std::string& bytes) {
+    const auto p = fs::temp_directory_path() / ("fettle-cloud-bad-" + std::to_string(::getpid()) + "-" + name);
+    std::ofstream(p, std::ios::binary) << bytes;
+    files_.push_back(p);
+    return p;
+  }
+  void TearDown() override {
+    for (const auto& f : files_) fs::remove(f);
+  }
+  std::vector<fs::path> files_;
+};
+
+std::string floats(const std::vector<float>& v) {
+  std::string s(v.size() * sizeof(float), '\0');
+  std::memcpy(s.data(), v.data(), s.size());
+  return s;
+}
+
+std::string pcd_header(const std::string& width, const std::string& points, const std::string& data) {
+  return "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH " + width +
+         "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " + points + "\nDATA " + data + "\n";
+}
+
+std::string ply_header(const std::string& format, const std::string& vertices) {
+  return "ply\nformat " + format + " 1.0\nelement vertex " + vertices +
+         "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+}
+
+/// Loads in a child with a 2 GB cap: must end in a UserError or a cloud, within the cap.
+ChildOutcome load_in_child(const fs::path& file) {
+  return run_in_child([file] {
+    try {
+      (void)load_cloud(file);
+    } catch (const UserError&) {
+    }
+  });
+}
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+constexpr float kInf = std::numeric_limits<float>::infinity();
+
+}  // namespace
+
+TEST_F(CloudBadInput, NaNAndInfPointsAreDroppedAndFinitePointsKept) {
+  const auto ply = write("mixed.ply", ply_header("binary_little_endian", "4") +
+                                          floats({kNaN, 0, 0, 1, kInf, 2, 3, 4, 5, -kInf, 1, 1}));
+  const Cloud c = load_cloud(ply);
+  ASSERT_EQ(c.size(), 1U);
+  EXPECT_EQ(c.points[0], Eigen::Vector3f(3, 4, 5));
+  const auto pcd = write("mixed.pcd", pcd_header("3", "3", "ascii") + "nan 1 2\n1 inf 2\n7 8 9\n");
+  const Cloud d = load_cloud(pcd);
+  ASSERT_EQ(d.size(), 1U);
+  EXPECT_EQ(d.points[0], Eigen::Vector3f(7, 8, 9));
+}
+
+TEST_F(CloudBadInput, OnlyInfinitePointsIsAUserErrorSayingSo) {
+  const auto ply = write("inf.ply", ply_header("binary_little_endian", "2") + floats({kInf, 0, 0, 0, -kInf, 0}));
+  EXPECT_THAT([&] { (void)load_cloud(ply); }, ::testing::ThrowsMessage<UserError>(HasSubstr("none is valid")));
+}
+
+TEST_F(CloudBadInput, NoPointsIsAUserErrorNamingTheFile) {
+  for (const auto& [name, text] : std::vector<std::pair<std::string, std::string>>{
+           {"zero.ply", ply_header("binary_little_endian", "0")},
+           {"zero_ascii.ply", ply_header("ascii", "0")},
+           {"zero.pcd", pcd_header("0", "0", "ascii")},
+           {"zero_binary.pcd", pcd_header("0", "0", "binary")},
+           {"empty.ply", ""},
+           {"empty.pcd", ""}}) {
+    const auto f = write(name, text);
+    EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr(f.string()))) << name;
+  }
+}
+
+TEST_F(CloudBadInput, HeaderClaimingMorePointsThanTheFileHolds) {
+  // Three points in the file; the headers claim a thousand.
+  const auto ply = write("short.ply", ply_header("binary_little_endian", "1000") + floats({1, 2, 3, 4, 5, 6, 7, 8, 9}));
+  const auto ply_ascii = write("short_ascii.ply", ply_header("ascii", "1000") + "1 2 3\n4 5 6\n7 8 9\n");
+  const auto pcd = write("short.pcd", pcd_header("1000", "1000", "binary") + floats({1, 2, 3, 4, 5, 6, 7, 8, 9}));
+  const auto pcd_ascii = write("short_ascii.pcd", pcd_header("1000", "1000", "ascii") + "1 2 3\n4 5 6\n7 8 9\n");
+  for (const auto& f : {ply, ply_ascii, pcd, pcd_ascii}) {
+    try {
+      const Cloud c = load_cloud(f);
+      EXPECT_LE(c.size(), 3U) << f << ": points that are not in the file";
+    } catch (const UserError& e) {
+      EXPECT_THAT(e.what(), HasSubstr(f.string()));
+    }
+  }
+}
+
+TEST_F(CloudBadInput, HeaderClaimingFewerPointsThanTheFileHolds) {
+  const auto ply = write("long.ply", ply_header("binary_little_endian", "1") + floats({1, 2, 3, 4, 5, 6}));
+  const Cloud c = load_cloud(ply);
+  ASSERT_EQ(c.size(), 1U);
+  EXPECT_EQ(c.points[0], Eigen::Vector3f(1, 2, 3));
+}
+
+TEST_F(CloudBadInput, PcdWidthAndPointsDisagree) {
+  const auto pcd = write("disagree.pcd", pcd_header("5", "2", "ascii") + "1 2 3\n4 5 6\n");
+  try {
+    const Cloud c = load_cloud(pcd);
+    EXPECT_LE(c.size(), 2U);
+  } catch (const UserError& e) {
+    EXPECT_THAT(e.what(), HasSubstr(pcd.string()));
+  }
+}
+
+TEST_F(CloudBadInput, HeaderClaimingBillionsOfPointsDoesNotAllocateGigabytes) {
+  const std::string three = floats({1, 2, 3, 4, 5, 6, 7, 8, 9});
+  const std::vector<fs::path> files = {
+      write("billions.ply", ply_header("binary_little_endian", "4000000000") + three),
+      write("billions_ascii.ply", ply_header("ascii", "4000000000") + "1 2 3\n"),
+      write("billions.pcd", pcd_header("4000000000", "4000000000", "binary") + three),
+      write("billions_ascii.pcd", pcd_header("4000000000", "4000000000", "ascii") + "1 2 3\n"),
+      write("billions_compressed.pcd", pcd_header("4000000000", "4000000000", "binary_compressed") +
+                                           std::string("\x10\x00\x00\x00\x00\x00\x00\x10", 8) + three),
+  };
+  for (const auto& f : files) {
+    const auto out = load_in_child(f);
+    EXPECT_TRUE(out.how == ChildOutcome::How::returned) << f.filename() << ": " << out.detail
+                                                        << (out.how == ChildOutcome::How::bad_alloc ? " (bad_alloc)" : "");
+    EXPECT_LT(out.max_rss_mb, 1024) << f.filename();
+  }
+}
