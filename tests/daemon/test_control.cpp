@@ -45,15 +45,20 @@ int raw_connect(const fs::path& path) {
   return fd;
 }
 
-/// Leaves a socket file nobody listens on (a daemon that crashed).
-void make_stale_socket(const fs::path& path) {
+/// A listening Unix socket on `path` that never accepts (the caller closes the fd).
+int listen_unix(const fs::path& path, int backlog) {
   const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
   sockaddr_un addr{};
   addr.sun_family = AF_UNIX;
   std::strncpy(addr.sun_path, path.c_str(), sizeof(addr.sun_path) - 1);
-  ASSERT_EQ(::bind(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr), 0);
-  ASSERT_EQ(::listen(fd, 1), 0);
-  ::close(fd);  // the file stays, nobody listens
+  EXPECT_EQ(::bind(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr), 0) << path;
+  EXPECT_EQ(::listen(fd, backlog), 0) << path;
+  return fd;
+}
+
+/// Leaves a socket file nobody listens on (a daemon that crashed).
+void make_stale_socket(const fs::path& path) {
+  ::close(listen_unix(path, 1));  // the file stays, nobody listens
 }
 
 json ask(const fs::path& socket, const json& request) {
@@ -418,12 +423,7 @@ TEST(ControlClient, NoServerSaysIsFettledRunning) {
 TEST(ControlClient, AServerThatNeverRepliesTimesOut) {
   TempDir dir;
   const fs::path path = dir.path() / "mute.sock";
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
-  sockaddr_un addr{};
-  addr.sun_family = AF_UNIX;
-  std::strncpy(addr.sun_path, path.c_str(), sizeof(addr.sun_path) - 1);
-  ASSERT_EQ(::bind(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr), 0);
-  ASSERT_EQ(::listen(fd, 4), 0);
+  const int fd = listen_unix(path, 4);
   const auto t0 = std::chrono::steady_clock::now();
   auto r = control::call(path, json{{"cmd", "status"}}, 300ms);
   ASSERT_FALSE(r);

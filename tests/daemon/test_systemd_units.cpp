@@ -86,25 +86,18 @@ TEST(SystemdUnits, FettledHasTheRequiredSettings) {
   EXPECT_EQ(filters.first->second, "@system-service");
 }
 
-TEST(SystemdUnits, FettledExposureIsAtMost3) {
+void expect_exposure_at_most_3(const std::string& unit) {
   fs::path analyze;
   if (const auto reason = analyze_or_reason(analyze); !reason.empty()) GTEST_SKIP() << reason;
   std::string out;
-  const double level = exposure(analyze, unit_dir / "fettled.service", out);
+  const double level = exposure(analyze, unit_dir / unit, out);
   ASSERT_GE(level, 0.0) << "no overall exposure in:\n" << out;
   EXPECT_LE(level, 3.0) << out;
-  std::cout << "fettled.service: overall exposure " << level << "\n";
+  std::cout << unit << ": overall exposure " << level << "\n";
 }
 
-TEST(SystemdUnits, FettleSimExposureIsAtMost3) {
-  fs::path analyze;
-  if (const auto reason = analyze_or_reason(analyze); !reason.empty()) GTEST_SKIP() << reason;
-  std::string out;
-  const double level = exposure(analyze, unit_dir / "fettle-sim.service", out);
-  ASSERT_GE(level, 0.0) << "no overall exposure in:\n" << out;
-  EXPECT_LE(level, 3.0) << out;
-  std::cout << "fettle-sim.service: overall exposure " << level << "\n";
-}
+TEST(SystemdUnits, FettledExposureIsAtMost3) { expect_exposure_at_most_3("fettled.service"); }
+TEST(SystemdUnits, FettleSimExposureIsAtMost3) { expect_exposure_at_most_3("fettle-sim.service"); }
 
 TEST(SystemdUnits, ExposureCheckCanFail) {
   // The same analysis on a unit without hardening must score far above 3.0.
