@@ -234,6 +234,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       if (robot) robot->close();
       socketcand.reset();
       work.reset();
+      io.stop();  // the drive's and the robot's timers would keep run() going
     });
     if (io_thread.joinable()) io_thread.join();
     camera.reset();
