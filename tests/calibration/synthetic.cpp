@@ -1,6 +1,7 @@
 #include "synthetic.hpp"
 
 #include <cmath>
+#include <numbers>
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -19,24 +20,35 @@ config::CameraIntrinsics test_camera(bool distorted) {
   return k;
 }
 
-cv::Mat render_board(const vision::calibration::BoardSpec& board, const config::CameraIntrinsics& k,
-                     const Transform& T, double blur_sigma_px, double noise_grey, unsigned seed) {
-  // Texture: (cols + 1) x (rows + 1) squares plus a one-square white margin, S texels per square.
-  constexpr int S = 60;
-  const int sq_x = board.cols + 3, sq_y = board.rows + 3;
-  cv::Mat tex(sq_y * S, sq_x * S, CV_32FC1, cv::Scalar(230.0));
-  for (int j = 1; j < sq_y - 1; ++j)
-    for (int i = 1; i < sq_x - 1; ++i)
-      if ((i + j) % 2 == 0) tex(cv::Rect(i * S, j * S, S, S)).setTo(cv::Scalar(25.0));
-  // Every image pixel: undistorted normalized ray -> board plane -> texture coordinate.
+namespace {
+
+/// The undistorted normalized ray of every pixel of the camera (computed once per camera: the
+/// same for every view, and the slow part of rendering).
+const std::vector<cv::Point2f>& pixel_rays(const config::CameraIntrinsics& k) {
+  static std::vector<double> key;
+  static std::vector<cv::Point2f> rays;
+  std::vector<double> this_key{static_cast<double>(k.width_px), static_cast<double>(k.height_px), k.fx_px, k.fy_px,
+                               k.cx_px, k.cy_px};
+  this_key.insert(this_key.end(), k.distortion.begin(), k.distortion.end());
+  if (this_key == key) return rays;
   std::vector<cv::Point2f> px;
   px.reserve(static_cast<std::size_t>(k.width_px) * static_cast<std::size_t>(k.height_px));
   for (int v = 0; v < k.height_px; ++v)
     for (int u = 0; u < k.width_px; ++u) px.emplace_back(static_cast<float>(u), static_cast<float>(v));
   const cv::Mat K = (cv::Mat_<double>(3, 3) << k.fx_px, 0, k.cx_px, 0, k.fy_px, k.cy_px, 0, 0, 1);
-  std::vector<cv::Point2f> norm;
-  cv::undistortPoints(px, norm, K, cv::Mat(k.distortion, true), cv::noArray(), cv::noArray(),
+  cv::undistortPoints(px, rays, K, cv::Mat(k.distortion, true), cv::noArray(), cv::noArray(),
                       cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 30, 1e-12));
+  key = this_key;
+  return rays;
+}
+
+/// Renders a planar texture (CV_32FC1) lying in the board plane at T_camera_board:
+/// texel = board_to_tex * (x_mm, y_mm, 1).
+cv::Mat render_texture(const cv::Mat& tex, const Eigen::Matrix<double, 2, 3>& board_to_tex,
+                       const config::CameraIntrinsics& k, const Transform& T, double blur_sigma_px, double noise_grey,
+                       unsigned seed) {
+  // Every image pixel: undistorted normalized ray -> board plane -> texture coordinate.
+  const auto& norm = pixel_rays(k);
   Eigen::Matrix3d G;
   G.col(0) = T.linear().col(0);
   G.col(1) = T.linear().col(1);
@@ -50,8 +62,9 @@ cv::Mat render_board(const vision::calibration::BoardSpec& board, const config::
       const Eigen::Vector3d b = Gi * Eigen::Vector3d(n.x, n.y, 1.0);
       float tx = -1000.f, ty = -1000.f;
       if (b.z() > 0) {  // in front of the camera
-        tx = static_cast<float>((b.x() / b.z() / board.square_mm + 2.0) * S - 0.5);
-        ty = static_cast<float>((b.y() / b.z() / board.square_mm + 2.0) * S - 0.5);
+        const Eigen::Vector2d t = board_to_tex * Eigen::Vector3d(b.x() / b.z(), b.y() / b.z(), 1.0);
+        tx = static_cast<float>(t.x());
+        ty = static_cast<float>(t.y());
       }
       mapx.at<float>(v, u) = tx;
       mapy.at<float>(v, u) = ty;
@@ -66,6 +79,31 @@ cv::Mat render_board(const vision::calibration::BoardSpec& board, const config::
   cv::Mat out;
   img.convertTo(out, CV_8UC1);
   return out;
+}
+
+}  // namespace
+
+cv::Mat render_board(const vision::calibration::BoardSpec& board, const config::CameraIntrinsics& k,
+                     const Transform& T, double blur_sigma_px, double noise_grey, unsigned seed) {
+  // Texture: (cols + 1) x (rows + 1) squares plus a one-square white margin, S texels per square.
+  constexpr int S = 60;
+  const int sq_x = board.cols + 3, sq_y = board.rows + 3;
+  cv::Mat tex(sq_y * S, sq_x * S, CV_32FC1, cv::Scalar(230.0));
+  for (int j = 1; j < sq_y - 1; ++j)
+    for (int i = 1; i < sq_x - 1; ++i)
+      if ((i + j) % 2 == 0) tex(cv::Rect(i * S, j * S, S, S)).setTo(cv::Scalar(25.0));
+  Eigen::Matrix<double, 2, 3> board_to_tex;
+  board_to_tex << S / board.square_mm, 0.0, 2.0 * S - 0.5, 0.0, S / board.square_mm, 2.0 * S - 0.5;
+  return render_texture(tex, board_to_tex, k, T, blur_sigma_px, noise_grey, seed);
+}
+
+cv::Mat render_board_image(const vision::calibration::BoardImage& board, const config::CameraIntrinsics& k,
+                           const Transform& T, double blur_sigma_px, double noise_grey, unsigned seed) {
+  const auto& im = board.image;
+  cv::Mat tex8(im.height_px, im.width_px, CV_8UC1, const_cast<std::uint8_t*>(im.pixels.data()));  // NOLINT
+  cv::Mat tex;
+  tex8.convertTo(tex, CV_32FC1, (230.0 - 25.0) / 255.0, 25.0);  // print contrast: black 25, white 230
+  return render_texture(tex, board.board_to_px, k, T, blur_sigma_px, noise_grey, seed);
 }
 
 vision::calibration::GrayImage to_gray_image(const cv::Mat& m, const std::string& name) {
@@ -99,7 +137,7 @@ Transform noise(std::mt19937_64& rng, double sigma_mm, double sigma_deg) {
   return T;
 }
 
-HandEyeTruth hand_eye_truth() {
+HandEyeTruth hand_eye_truth(bool board_on_flange_plate) {
   HandEyeTruth t;
   t.T_base_camera = Transform::Identity();
   t.T_base_camera.linear() = (Eigen::AngleAxisd(deg_to_rad(180.0), Vec3::UnitX()) *
@@ -111,31 +149,78 @@ HandEyeTruth hand_eye_truth() {
   t.T_flange_board.linear() =
       (Eigen::AngleAxisd(deg_to_rad(3.0), Vec3::UnitZ()) * Eigen::AngleAxisd(deg_to_rad(-1.0), Vec3::UnitX()))
           .toRotationMatrix();
-  t.T_flange_board.translation() = Vec3(-80.0, -50.0, 80.0);
+  // The board frame's origin is its first inner corner; the 9x6 x 20 mm board's centre is at
+  // (80, 50) mm in it.
+  t.T_flange_board.translation() = Vec3(-80.0, -50.0, board_on_flange_plate ? 25.0 : 80.0);
   return t;
+}
+
+PoseDesign recommended_design() {
+  PoseDesign d;
+  d.depth_mm = 80.0;
+  d.tilt_deg = 45.0;
+  d.min_tilt_deg = 30.0;
+  d.spin_deg = 90.0;
+  d.designed = true;
+  return d;
+}
+
+PoseNoise PoseNoise::rms_magnitude(double magnitude_mm, double magnitude_deg) {
+  return per_axis(magnitude_mm / std::sqrt(3.0), magnitude_deg / std::sqrt(3.0));
+}
+
+PoseNoise PoseNoise::per_axis(double sigma_mm, double sigma_deg) {
+  return PoseNoise{sigma_mm, sigma_deg, sigma_mm, sigma_deg};
+}
+
+std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTruth& truth, int n,
+                                                                 const PoseDesign& d, const PoseNoise& nz,
+                                                                 std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const vision::calibration::BoardSpec board{9, 6, 20.0};
+  std::vector<vision::calibration::HandEyeSample> out;
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  for (int i = 0; i < n; ++i) {
+    if (d.designed) {
+      const double sx = (i % 2 == 0 ? 1.0 : -1.0) * (0.8 + 0.2 * u01(rng));
+      const double sy = ((i / 2) % 2 == 0 ? 1.0 : -1.0) * (0.8 + 0.2 * u01(rng));
+      const double depth = d.depth_mm * static_cast<double>(i % 3 - 1);
+      const double tilt = deg_to_rad(d.min_tilt_deg + (d.tilt_deg - d.min_tilt_deg) * u01(rng));
+      const double azimuth = 2.0 * std::numbers::pi * u01(rng);
+      const double spin = deg_to_rad(d.spin_deg * u(rng));
+      const Transform B = board_pose_facing_camera(board, d.distance_mm + depth, d.lateral_x_mm * sx,
+                                                   d.lateral_y_mm * sy, tilt * std::cos(azimuth),
+                                                   tilt * std::sin(azimuth), spin);
+      const Transform A = truth.T_base_camera * B * truth.T_flange_board.inverse();
+      vision::calibration::HandEyeSample s;
+      s.name = "pose" + std::to_string(i + 1);
+      s.T_base_flange = A * noise(rng, nz.robot_sigma_mm, nz.robot_sigma_deg);
+      s.T_camera_board = B * noise(rng, nz.board_sigma_mm, nz.board_sigma_deg);
+      out.push_back(s);
+      continue;
+    }
+    const double tilt_x = d.single_axis ? 0.0 : deg_to_rad(d.tilt_deg * u(rng));
+    const double tilt_y = d.single_axis ? 0.0 : deg_to_rad(d.tilt_deg * u(rng));
+    const double spin = deg_to_rad(d.spin_deg * u(rng));
+    const Transform B = board_pose_facing_camera(board, d.distance_mm + d.depth_mm * u(rng), d.lateral_x_mm * u(rng),
+                                                 d.lateral_y_mm * u(rng), tilt_x, tilt_y, spin);
+    const Transform A = truth.T_base_camera * B * truth.T_flange_board.inverse();
+    vision::calibration::HandEyeSample s;
+    s.name = "pose" + std::to_string(i + 1);
+    s.T_base_flange = A * noise(rng, nz.robot_sigma_mm, nz.robot_sigma_deg);
+    s.T_camera_board = B * noise(rng, nz.board_sigma_mm, nz.board_sigma_deg);
+    out.push_back(s);
+  }
+  return out;
 }
 
 std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTruth& truth, int n, double sigma_mm,
                                                                  double sigma_deg, std::uint64_t seed,
                                                                  bool single_axis) {
-  std::mt19937_64 rng(seed);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  const vision::calibration::BoardSpec board{9, 6, 20.0};
-  std::vector<vision::calibration::HandEyeSample> out;
-  for (int i = 0; i < n; ++i) {
-    const double tilt_x = single_axis ? 0.0 : deg_to_rad(30.0 * u(rng));
-    const double tilt_y = single_axis ? 0.0 : deg_to_rad(30.0 * u(rng));
-    const double spin = deg_to_rad(60.0 * u(rng));
-    const Transform B =
-        board_pose_facing_camera(board, 480.0 + 60.0 * u(rng), 120.0 * u(rng), 90.0 * u(rng), tilt_x, tilt_y, spin);
-    const Transform A = truth.T_base_camera * B * truth.T_flange_board.inverse();
-    vision::calibration::HandEyeSample s;
-    s.name = "pose" + std::to_string(i + 1);
-    s.T_base_flange = A * noise(rng, sigma_mm, sigma_deg);
-    s.T_camera_board = B * noise(rng, sigma_mm, sigma_deg);
-    out.push_back(s);
-  }
-  return out;
+  PoseDesign d;
+  d.single_axis = single_axis;
+  return hand_eye_samples(truth, n, d, PoseNoise::per_axis(sigma_mm, sigma_deg), seed);
 }
 
 double rotation_error_deg(const Transform& a, const Transform& b) {

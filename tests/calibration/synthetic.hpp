@@ -22,13 +22,20 @@ cv::Mat render_board(const vision::calibration::BoardSpec& board, const config::
                      const Transform& T_camera_board, double blur_sigma_px = 0.0, double noise_grey = 1.0,
                      unsigned seed = 1);
 
+/// Renders a drawn board (vision::calibration::draw_board, e.g. a ChArUco board) at
+/// T_camera_board through the camera; parts outside the image are cut off (partial views).
+cv::Mat render_board_image(const vision::calibration::BoardImage& board, const config::CameraIntrinsics& camera,
+                           const Transform& T_camera_board, double blur_sigma_px = 0.0, double noise_grey = 1.0,
+                           unsigned seed = 1);
+
 vision::calibration::GrayImage to_gray_image(const cv::Mat& m, const std::string& name);
 
 /// A board pose facing the camera at `distance_mm`, offset and tilted (radians).
 Transform board_pose_facing_camera(const vision::calibration::BoardSpec& board, double distance_mm, double dx_mm,
                                    double dy_mm, double tilt_x, double tilt_y, double spin_z);
 
-/// A small random motion: per-axis Gaussian sigma in mm and degrees.
+/// A small random motion: per-axis Gaussian sigma in mm and degrees (a rotation vector with
+/// sigma_deg on each axis and a translation with sigma_mm on each axis).
 Transform noise(std::mt19937_64& rng, double sigma_mm, double sigma_deg);
 
 struct HandEyeTruth {
@@ -37,11 +44,49 @@ struct HandEyeTruth {
 };
 
 /// The ground truth used by the hand-eye tests: the camera 600 mm above the table looking
-/// down (as in the simulator), a board 80 mm in front of the flange.
-HandEyeTruth hand_eye_truth();
+/// down (as in the simulator), a board 80 mm in front of the flange (or, with
+/// `board_on_flange_plate`, centred on the flange 25 mm in front of it, as
+/// docs/calibration.md recommends).
+HandEyeTruth hand_eye_truth(bool board_on_flange_plate = false);
 
-/// `n` well-spread board poses in the camera and the matching robot poses, with per-axis
-/// noise added to both (mm, deg).
+/// How a synthetic hand-eye pose set is spread: the board centre at distance_mm +- depth_mm
+/// from the camera and +- lateral_x/y_mm across the view, tilted up to tilt_deg about the
+/// camera x and y axes and turned up to spin_deg about its normal (uniform random).
+struct PoseDesign {
+  double distance_mm = 480.0;
+  double depth_mm = 60.0;
+  double lateral_x_mm = 120.0;
+  double lateral_y_mm = 90.0;
+  double tilt_deg = 30.0;
+  double spin_deg = 60.0;
+  bool single_axis = false;  ///< spin only (a degenerate set)
+  /// Designed rather than uniform: the board near the corners of the view (lateral +-80..100 %
+  /// of the range) at the near, middle or far depth, each pose tilted by min_tilt_deg..tilt_deg
+  /// towards a random direction.
+  bool designed = false;
+  double min_tilt_deg = 0.0;
+};
+/// The pose set docs/calibration.md recommends: the board near the corners of the view at
+/// three depths (+-80 mm), each pose tilted 30-45 deg in its own direction, turned up to 90 deg.
+PoseDesign recommended_design();
+
+/// Noise added to every robot pose (flange frame) and every board pose (board frame), each
+/// an independent `noise(rng, per-axis sigma)` draw.
+struct PoseNoise {
+  double robot_sigma_mm = 0.0;  ///< per axis
+  double robot_sigma_deg = 0.0;
+  double board_sigma_mm = 0.0;
+  double board_sigma_deg = 0.0;
+  /// The same noise on robot and board poses; `magnitude_mm/deg` is the RMS length of the 3D
+  /// error (per-axis sigma = magnitude / sqrt(3)).
+  static PoseNoise rms_magnitude(double magnitude_mm, double magnitude_deg);
+  static PoseNoise per_axis(double sigma_mm, double sigma_deg);
+};
+
+std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTruth& truth, int n,
+                                                                 const PoseDesign& design, const PoseNoise& noise,
+                                                                 std::uint64_t seed);
+/// The same with the default design and per-axis noise (mm, deg) on both robot and board poses.
 std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTruth& truth, int n, double sigma_mm,
                                                                  double sigma_deg, std::uint64_t seed,
                                                                  bool single_axis = false);

@@ -33,45 +33,132 @@ TEST(HandEyeBoard, ExactDataGivesTheTruth) {
   EXPECT_EQ(r->residuals.method, "board");
 }
 
-// The accuracy target: 15 poses with 0.05 mm / 0.05 deg noise -> T_base_camera within
-// 0.1 mm and 0.05 deg. Here the noise is 0.05 mm and 0.05 deg PER AXIS on both the robot poses
-// and the board poses. Measured over these 8 seeds: rotation 0.016-0.056 deg, points of the
-// working volume (420-540 mm from the camera, across the field of view) 0.07-0.29 mm, camera
-// origin 0.11-0.41 mm: the 0.1 mm target is NOT met at this noise level (the rotation error
-// times the 600 mm lever arm dominates); the tolerances below are the measured worst case
-// with a small margin, so a regression still fails. See docs/calibration.md.
-class HandEyeAccuracy : public ::testing::TestWithParam<std::uint64_t> {};
+namespace {
 
-TEST_P(HandEyeAccuracy, FifteenNoisyPosesMeetTheTarget) {
-  const auto truth = test::hand_eye_truth();
-  const auto samples = test::hand_eye_samples(truth, 15, 0.05, 0.05, GetParam());
-  const auto r = calibrate_hand_eye_board(samples);
-  ASSERT_TRUE(r.ok()) << r.error().message;
-  const double e_origin_mm = test::translation_error_mm(r->T_base_camera, truth.T_base_camera);
-  const double e_deg = test::rotation_error_deg(r->T_base_camera, truth.T_base_camera);
-  double e_volume_mm = 0.0;
-  for (const double z : {420.0, 480.0, 540.0})
+struct Errors {
+  double volume_mm = 0.0;  ///< largest error of a working-volume point mapped into the base frame
+  double origin_mm = 0.0;  ///< error of the camera origin
+  double deg = 0.0;        ///< rotation error
+};
+
+Errors errors(const Transform& got, const Transform& want) {
+  Errors e;
+  e.origin_mm = test::translation_error_mm(got, want);
+  e.deg = test::rotation_error_deg(got, want);
+  // The working volume: 420 mm from the camera down to the table top at 600 mm, across the
+  // field of view (where castings are scanned and the calibration poses were).
+  for (const double z : {420.0, 510.0, 600.0})
     for (const double x : {-150.0, 0.0, 150.0})
       for (const double y : {-100.0, 0.0, 100.0}) {
         const Vec3 p(x, y, z);
-        e_volume_mm = std::max(e_volume_mm, (r->T_base_camera * p - truth.T_base_camera * p).norm());
+        e.volume_mm = std::max(e.volume_mm, (got * p - want * p).norm());
       }
-  RecordProperty("error_volume_mm", std::to_string(e_volume_mm));
-  RecordProperty("error_origin_mm", std::to_string(e_origin_mm));
-  RecordProperty("error_deg", std::to_string(e_deg));
+  return e;
+}
+
+}  // namespace
+
+// The accuracy target: 15 poses with 0.05 mm / 0.05 deg noise -> T_base_camera within
+// 0.1 mm and 0.05 deg.
+//
+// Noise model: EVERY robot pose (in the flange frame) and EVERY board pose (in the board frame)
+// gets its own random error whose 3D length has an RMS of 0.05 mm and 0.05 deg (Gaussian,
+// sigma 0.05/sqrt(3) = 0.029 per axis): both sides of A X = Y B are noisy.
+// Pose set: the one docs/calibration.md recommends (board centred on the flange 25 mm in front
+// of it, tilts up to 45 deg about two axes, turns up to 90 deg, 400-560 mm from the camera,
+// spread across the view). Estimator: linear (Kronecker) start, then a joint Gauss-Newton
+// over T_base_camera and T_flange_board on all poses, each mismatch weighted by its covariance.
+// "Within 0.1 mm" is measured where it matters: every point of the working volume (420-600 mm
+// from the camera, across the view) mapped into the base frame lands within 0.1 mm. The camera
+// origin itself lies ~500 mm behind the poses, so rotation error x 500 mm shows there: it is
+// checked against 0.2 mm. Measured over seeds 1-8: working volume 0.020-0.063 mm, rotation
+// 0.002-0.012 deg, camera origin 0.022-0.105 mm (seeds 1-100: the test below).
+class HandEyeAccuracy : public ::testing::TestWithParam<std::uint64_t> {};
+
+TEST_P(HandEyeAccuracy, FifteenNoisyPosesMeetTheTarget) {
+  const auto truth = test::hand_eye_truth(/*board_on_flange_plate=*/true);
+  const auto samples = test::hand_eye_samples(truth, 15, test::recommended_design(),
+                                              test::PoseNoise::rms_magnitude(0.05, 0.05), GetParam());
+  HandEyeOptions o;
+  o.robot_noise_mm = o.board_noise_mm = 0.05 / std::sqrt(3.0);
+  o.robot_noise_deg = o.board_noise_deg = 0.05 / std::sqrt(3.0);
+  const auto r = calibrate_hand_eye_board(samples, o);
+  ASSERT_TRUE(r.ok()) << r.error().message;
+  const Errors e = errors(r->T_base_camera, truth.T_base_camera);
+  RecordProperty("error_volume_mm", std::to_string(e.volume_mm));
+  RecordProperty("error_origin_mm", std::to_string(e.origin_mm));
+  RecordProperty("error_deg", std::to_string(e.deg));
   std::printf("seed %d: working volume %.3f mm, camera origin %.3f mm, rotation %.4f deg\n",
-              static_cast<int>(GetParam()), e_volume_mm, e_origin_mm, e_deg);
-  EXPECT_LT(e_volume_mm, 0.35);
-  EXPECT_LT(e_deg, 0.065);
-  EXPECT_LT(e_origin_mm, 0.5);
+              static_cast<int>(GetParam()), e.volume_mm, e.origin_mm, e.deg);
+  EXPECT_LT(e.volume_mm, 0.1);
+  EXPECT_LT(e.deg, 0.05);
+  EXPECT_LT(e.origin_mm, 0.2);
   // Residuals are of the order of the noise, and none of these poses is an outlier.
   EXPECT_GT(r->residuals.rms_mm, 0.01);
-  EXPECT_LT(r->residuals.rms_mm, 0.5);
+  EXPECT_LT(r->residuals.rms_mm, 0.3);
   for (const auto& p : r->residuals.per_pose) EXPECT_FALSE(p.outlier) << p.name;
   ASSERT_EQ(r->residuals.per_pose.size(), 15u);
 }
 
 INSTANTIATE_TEST_SUITE_P(Seeds, HandEyeAccuracy, ::testing::Values(1u, 2u, 3u, 4u, 5u, 6u, 7u, 8u));
+
+namespace {
+
+struct Percentiles {
+  double volume_median_mm, volume_p95_mm, deg_p95, origin_p95_mm;
+};
+
+/// Calibrates 100 random pose sets (seeds 1-100) of the recommended design with this noise.
+Percentiles survey(const test::PoseNoise& noise) {
+  const auto truth = test::hand_eye_truth(true);
+  std::vector<double> vol, deg, org;
+  for (std::uint64_t seed = 1; seed <= 100; ++seed) {
+    HandEyeOptions o;
+    o.robot_noise_mm = noise.robot_sigma_mm;
+    o.robot_noise_deg = noise.robot_sigma_deg;
+    o.board_noise_mm = noise.board_sigma_mm;
+    o.board_noise_deg = noise.board_sigma_deg;
+    const auto r = calibrate_hand_eye_board(test::hand_eye_samples(truth, 15, test::recommended_design(), noise, seed), o);
+    EXPECT_TRUE(r.ok()) << "seed " << seed << ": " << r.error().message;
+    if (!r.ok()) continue;
+    const Errors e = errors(r->T_base_camera, truth.T_base_camera);
+    vol.push_back(e.volume_mm);
+    deg.push_back(e.deg);
+    org.push_back(e.origin_mm);
+  }
+  const auto q = [](std::vector<double> v, double f) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? 1e9 : v[static_cast<std::size_t>(f * static_cast<double>(v.size() - 1))];
+  };
+  return {q(vol, 0.5), q(vol, 0.95), q(deg, 0.95), q(org, 0.95)};
+}
+
+}  // namespace
+
+// The target holds for the design, not for a lucky draw: over 100 random pose sets of the
+// recommended design, 95 % map the working volume within 0.1 mm and the rotation within 0.05 deg.
+TEST(HandEyeBoard, NinetyFivePercentOfRecommendedPoseSetsMeetTheTarget) {
+  const auto p = survey(test::PoseNoise::rms_magnitude(0.05, 0.05));
+  std::printf("RMS 0.05 mm / 0.05 deg, seeds 1-100: working volume median %.3f mm, 95%% %.3f mm; rotation 95%% "
+              "%.4f deg; camera origin 95%% %.3f mm\n",
+              p.volume_median_mm, p.volume_p95_mm, p.deg_p95, p.origin_p95_mm);
+  EXPECT_LT(p.volume_p95_mm, 0.1);
+  EXPECT_LT(p.deg_p95, 0.05);
+}
+
+// The same with 0.05 mm / 0.05 deg PER AXIS (3D RMS 0.087 mm / 0.087 deg, on both sides): the
+// rotation target is met, the 0.1 mm one is not reliably reachable with 15 poses at this noise
+// (docs/calibration.md: record more poses). The measured values with a margin keep a
+// regression visible.
+TEST(HandEyeBoard, PerAxisNoiseOfTheSameSizeGivesTheMeasuredAccuracy) {
+  const auto p = survey(test::PoseNoise::per_axis(0.05, 0.05));
+  std::printf("0.05 mm / 0.05 deg per axis, seeds 1-100: working volume median %.3f mm, 95%% %.3f mm; rotation "
+              "95%% %.4f deg; camera origin 95%% %.3f mm\n",
+              p.volume_median_mm, p.volume_p95_mm, p.deg_p95, p.origin_p95_mm);
+  EXPECT_LT(p.volume_median_mm, 0.12);
+  EXPECT_LT(p.volume_p95_mm, 0.2);
+  EXPECT_LT(p.deg_p95, 0.05);
+}
 
 TEST(HandEyeBoard, RotationsAboutOneAxisAreRefusedWithAdvice) {
   const auto truth = test::hand_eye_truth();
@@ -219,3 +306,4 @@ TEST(HandEyeSphere, PositionsOnALineAreRefused) {
   EXPECT_EQ(r.error().code, "calibration.degenerate_poses");
   EXPECT_NE(r.error().message.find("line"), std::string::npos);
 }
+

@@ -101,31 +101,62 @@ void solve_linear(const std::vector<HandEyeSample>& s, Transform& X, Transform& 
   Y.translation() = t.tail<3>();
 }
 
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+
+Mat3 skew(const Vec3& v) {
+  Mat3 m;
+  m << 0.0, -v.z(), v.y(), v.z(), 0.0, -v.x(), -v.y(), v.x(), 0.0;
+  return m;
+}
+
+/// The whitening matrix L (L^T L = Sigma^-1) of a pose mismatch E = (A X)^-1 Y B, to first
+/// order, when A and B carry right-multiplied noise (rotation w, translation t) with the given
+/// sigmas: log E = [w_B - R_X^T w_A ; t_B - R_X^T t_A + R_X^T [t_X]x w_A]. The covariance is
+/// the same for every pose; the lever arm t_X correlates rotation and translation.
+Mat6 whitening(const Transform& X, const HandEyeOptions& o) {
+  const Mat3 Rt = X.rotation().transpose();
+  Mat6 J = Mat6::Zero();
+  J.block<3, 3>(0, 0) = -Rt;
+  J.block<3, 3>(3, 0) = Rt * skew(X.translation());
+  J.block<3, 3>(3, 3) = -Rt;
+  const auto var = [](double s) { return std::max(s * s, 1e-12); };
+  Mat6 SA = Mat6::Zero(), SB = Mat6::Zero();
+  SA.diagonal() << Vec3::Constant(var(deg_to_rad(o.robot_noise_deg))), Vec3::Constant(var(o.robot_noise_mm));
+  SB.diagonal() << Vec3::Constant(var(deg_to_rad(o.board_noise_deg))), Vec3::Constant(var(o.board_noise_mm));
+  const Mat6 info = (J * SA * J.transpose() + SB).inverse();
+  return Eigen::LLT<Mat6>(0.5 * (info + info.transpose())).matrixU();
+}
+
+/// The whitened mismatch of every pose, scaled by the pose's robust weight `w` (sqrt).
 Eigen::VectorXd residual_vector(const std::vector<HandEyeSample>& s, const Transform& X, const Transform& Y,
-                                double w_rot) {
+                                const Mat6& L, const std::vector<double>& w) {
   Eigen::VectorXd r(6 * static_cast<Eigen::Index>(s.size()));
   for (std::size_t i = 0; i < s.size(); ++i) {
     const Transform E = mismatch(s[i], X, Y);
-    r.segment<3>(6 * static_cast<Eigen::Index>(i)) = w_rot * log_so3(E.rotation());
-    r.segment<3>(6 * static_cast<Eigen::Index>(i) + 3) = E.translation();
+    Vec6 e;
+    e.head<3>() = log_so3(E.rotation());
+    e.tail<3>() = E.translation();
+    r.segment<6>(6 * static_cast<Eigen::Index>(i)) = w[i] * (L * e);
   }
   return r;
 }
 
-/// Gauss-Newton (with a little damping) on the weighted per-pose mismatches.
-void refine(const std::vector<HandEyeSample>& s, Transform& X, Transform& Y, double w_rot) {
+/// Levenberg-Marquardt over X and Y jointly (12 parameters, right-multiplied SE(3) updates) on
+/// the whitened mismatches of all poses.
+void refine_weighted(const std::vector<HandEyeSample>& s, Transform& X, Transform& Y, const Mat6& L,
+                     const std::vector<double>& w) {
   double lambda = 1e-6;
-  Eigen::VectorXd r = residual_vector(s, X, Y, w_rot);
+  Eigen::VectorXd r = residual_vector(s, X, Y, L, w);
   double cost = r.squaredNorm();
   for (int iter = 0; iter < 50; ++iter) {
     Eigen::MatrixXd J(r.size(), 12);
-    const double h = 1e-6;
     for (int k = 0; k < 12; ++k) {
+      const double h = (k % 6) < 3 ? 1e-7 : 1e-5;  // rad, mm
       Vec6 d = Vec6::Zero();
       d(k % 6) = h;
       const Transform Xp = k < 6 ? Transform(X * exp_se3(d)) : X;
       const Transform Yp = k < 6 ? Y : Transform(Y * exp_se3(d));
-      J.col(k) = (residual_vector(s, Xp, Yp, w_rot) - r) / h;
+      J.col(k) = (residual_vector(s, Xp, Yp, L, w) - r) / h;
     }
     Eigen::Matrix<double, 12, 12> H = J.transpose() * J;
     const Eigen::Matrix<double, 12, 1> g = J.transpose() * r;
@@ -136,7 +167,7 @@ void refine(const std::vector<HandEyeSample>& s, Transform& X, Transform& Y, dou
       const Eigen::Matrix<double, 12, 1> step = -Hd.ldlt().solve(g);
       const Transform Xn = X * exp_se3(step.head<6>());
       const Transform Yn = Y * exp_se3(step.tail<6>());
-      const Eigen::VectorXd rn = residual_vector(s, Xn, Yn, w_rot);
+      const Eigen::VectorXd rn = residual_vector(s, Xn, Yn, L, w);
       if (rn.squaredNorm() < cost) {
         X = Xn;
         Y = Yn;
@@ -151,6 +182,28 @@ void refine(const std::vector<HandEyeSample>& s, Transform& X, Transform& Y, dou
       }
     }
     if (!improved) return;
+  }
+}
+
+/// The covariance depends on X (its lever arm), so it is recomputed between passes; each pass
+/// also re-weights the poses with Huber's weights on their whitened mismatch (iteratively
+/// re-weighted least squares), so that one grossly wrong pose cannot pull the solution far
+/// enough to hide among the others before the outlier check. Poses that fit the noise model
+/// (whitened mismatch below kHuber, nearly all of them) keep the weight 1.
+void refine(const std::vector<HandEyeSample>& s, Transform& X, Transform& Y, const HandEyeOptions& o) {
+  constexpr double kHuber = 5.0;  // whitened 6-vector norm (about 2.4 expected without outliers)
+  std::vector<double> w(s.size(), 1.0);
+  for (int pass = 0; pass < 4; ++pass) {
+    const Mat6 L = whitening(X, o);
+    refine_weighted(s, X, Y, L, w);
+    for (std::size_t i = 0; i < s.size(); ++i) {
+      const Transform E = mismatch(s[i], X, Y);
+      Vec6 e;
+      e.head<3>() = log_so3(E.rotation());
+      e.tail<3>() = E.translation();
+      const double n = (L * e).norm();
+      w[i] = n <= kHuber ? 1.0 : std::sqrt(kHuber / n);
+    }
   }
 }
 
@@ -253,7 +306,7 @@ Result<HandEyeResult> calibrate_hand_eye_board(const std::vector<HandEyeSample>&
   Transform X, Y;
   for (int round = 0; round < 3; ++round) {
     solve_linear(used, X, Y);
-    refine(used, X, Y, o.rotation_weight_mm_per_rad);
+    refine(used, X, Y, o);
     if (!o.drop_outliers) break;
     std::vector<double> t_mm, r_deg;
     for (const auto& s : samples) {

@@ -4,7 +4,8 @@
 // Board method (paper Eqs. 7-8): for every robot pose i,
 //   T_base_flange[i] * T_flange_board = T_base_camera * T_camera_board[i]      (A_i X = Y B_i)
 // solved linearly (Kronecker/vec form for the rotations, then least squares for the
-// translations) and refined by Gauss-Newton on the per-pose residuals.
+// translations) and refined jointly over X, Y and all poses by Gauss-Newton on SE(3), each
+// pose's mismatch (A_i X)^-1 Y B_i weighted by its covariance (see HandEyeOptions).
 // Sphere method: a sphere held by the robot at N TCP positions, its centre found in each
 // 3D scan; a rigid fit (Umeyama) of the centres to the TCP positions gives T_base_camera.
 #include <cstdint>
@@ -30,8 +31,14 @@ struct HandEyeOptions {
   double min_rotation_deg = 10.0;
   /// ...about at least two axes this far apart (deg); less is a degenerate pose set.
   double min_axis_spread_deg = 15.0;
-  /// Weight of a rotation residual against a translation residual in the refinement.
-  double rotation_weight_mm_per_rad = 60.0;
+  /// Expected noise (1 sigma per axis) of the robot's flange poses and of the board poses the
+  /// camera measures, applied in the flange and board frames. The refinement weights every
+  /// pose's mismatch with the 6x6 covariance these give (rotation noise of the flange times the
+  /// flange-to-board lever arm included); only their ratios change the result.
+  double robot_noise_mm = 0.03;
+  double robot_noise_deg = 0.03;
+  double board_noise_mm = 0.03;
+  double board_noise_deg = 0.03;
   /// A pose is an outlier when its residual exceeds outlier_factor x the median residual and
   /// the floor below; outliers are reported and left out of the solution.
   double outlier_factor = 5.0;
