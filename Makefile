@@ -11,7 +11,7 @@ FUZZ_SECONDS ?= 300
 # ctest arguments for test-asan, e.g. ASAN_CTEST_ARGS="-LE slow" in CI.
 ASAN_CTEST_ARGS ?=
 
-.PHONY: all deps configure build test test-unit test-asan fuzz demo bench clean
+.PHONY: all deps configure build test test-unit test-asan fuzz demo bench accuracy-vision clean
 
 all: build
 
@@ -54,6 +54,10 @@ demo: build
 
 bench: build
 	@scripts/bench $(BUILD_DIR)
+
+# The vision accuracy test of issue 4 on 50 simulated castings (disabled in ctest until it passes).
+accuracy-vision: build
+	FETTLE_ACCURACY_SEEDS=50 $(BUILD_DIR)/bin/test_vision_sim_accuracy --gtest_also_run_disabled_tests
 
 clean:
 	rm -rf $(BUILD_DIR)

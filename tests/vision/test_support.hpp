@@ -41,4 +41,11 @@ inline PoseError pose_error(const Transform& estimate, const Transform& truth) {
   return {(estimate.translation() - truth.translation()).norm(), rotation_angle_rad(d)};
 }
 
+/// Pose error of a region: the displacement of `at` (the region's ROI centre, template
+/// frame) between the two poses, and the rotation angle between them. Measured at the region
+/// rather than at the part origin so a tiny rotation does not count again as a translation.
+inline PoseError pose_error_at(const Transform& estimate, const Transform& truth, const Vec3& at) {
+  return {(estimate * at - truth * at).norm(), rotation_angle_rad(truth.inverse() * estimate)};
+}
+
 }  // namespace fettle::vision::test

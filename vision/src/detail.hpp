@@ -37,11 +37,12 @@ inline int thread_count(int requested) {
   return static_cast<int>(std::max(1U, std::thread::hardware_concurrency()));
 }
 
-/// Runs fn(thread, begin, end) over [0, n) split into contiguous chunks.
+/// Runs fn(thread, begin, end) over [0, n) split into contiguous chunks (one thread when n is
+/// below min_n: not worth starting threads for).
 template <class Fn>
-void parallel_for(std::size_t n, int threads, Fn&& fn) {
+void parallel_for(std::size_t n, int threads, Fn&& fn, std::size_t min_n = 2048) {
   const auto t = static_cast<std::size_t>(std::max(1, threads));
-  if (t == 1 || n < 2048) {
+  if (t == 1 || n < min_n) {
     fn(0, std::size_t{0}, n);
     return;
   }

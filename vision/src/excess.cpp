@@ -18,7 +18,7 @@ std::vector<float> signed_distances(const PreparedCloud& templ, const std::vecto
   std::vector<float> out(points.size(), 0.0f);
   detail::parallel_for(points.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
-      const auto [j, d2] = detail::nearest(*T.fine_tree, points[i]);
+      const auto [j, d2] = T.nearest_any(points[i]);
       if (j < 0) {
         out[i] = std::numeric_limits<float>::quiet_NaN();
         continue;
@@ -40,7 +40,7 @@ ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_
   detail::parallel_for(scene_in_template.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       const auto& p = scene_in_template.points[i];
-      const auto [j, d2] = detail::nearest(*T.fine_tree, p);
+      const auto [j, d2] = T.nearest_any(p);
       if (j < 0) continue;
       const auto k = static_cast<std::size_t>(j);
       const float h = T.fine.normals[k].dot(p - T.fine.points[k]);
@@ -84,6 +84,29 @@ ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_
       t = std::max(t, height[i]);
       out.max_height_mm = std::max(out.max_height_mm, static_cast<double>(height[i]));
     }
+  }
+  // Holes: a scene sampled at the template's own pitch leaves some patches without a point
+  // of their own (aliasing of two grids). A patch whose 4-neighbourhood carries excess on at
+  // least 3 sides is inside the footprint: it gets their mean height.
+  {
+    const double reach = 1.05 * std::max(1e-6, templ.fine_spacing());
+    std::unordered_map<int, std::pair<float, int>> fill;  // template point -> (height sum, sides)
+    pcl::Indices nn4;
+    std::vector<float> d4;
+    for (const auto& [j, h] : top) {
+      pcl::PointXYZ q;
+      q.getVector3fMap() = T.fine.points[static_cast<std::size_t>(j)];
+      T.fine_tree->radiusSearch(q, reach, nn4, d4);
+      for (const auto m : nn4) {
+        if (m == j || top.count(m) > 0) continue;
+        if (T.fine.normals[static_cast<std::size_t>(m)].dot(T.fine.normals[static_cast<std::size_t>(j)]) < 0.9f) continue;
+        auto& f = fill[m];
+        f.first += h;
+        ++f.second;
+      }
+    }
+    for (const auto& [m, f] : fill)
+      if (f.second >= 3) top[m] = f.first / static_cast<float>(f.second);
   }
   // Patch area: the square of the mean distance to the 4 nearest template points (exact
   // on the voxel grid the template is resampled to).

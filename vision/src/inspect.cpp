@@ -2,17 +2,27 @@
 #include "fettle/vision/inspect.hpp"
 
 #include <chrono>
+#include <cmath>
 #include <fstream>
+#include <limits>
 #include <sstream>
 
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/vision/plane.hpp"
 #include "fettle/vision/preprocess.hpp"
+#include "detail.hpp"
+#include "spatial.hpp"
 
 namespace fettle::vision {
 
 namespace {
+
+/// Context around a region's ROI for its ICP template and scene crop (mm): a region's own
+/// surface is often seen at grazing angles only (the flange wall from a camera above), the
+/// surfaces next to it (the flange top, the plate around it) pin its pose. The excess is
+/// still measured inside the ROI itself.
+constexpr double kRegionContextMm = 10.0;
 
 PrepareSettings whole_settings(const config::PartRecipe& recipe) {
   PrepareSettings ps;
@@ -34,7 +44,7 @@ Eigen::Vector3d box_max(const config::Region& r, double margin) {
 
 std::string cache_key(const config::PartRecipe& recipe, const std::string& golden_identity, std::size_t golden_points) {
   std::ostringstream k;
-  k << "fettle-vision-cache 1\n" << golden_identity << "\n" << golden_points << "\n";
+  k << "fettle-vision-cache 3\n" << golden_identity << "\n" << golden_points << "\n";
   k << recipe.template_source.voxel_mm << " " << recipe.vision.coarse_voxel_mm << " " << recipe.vision.feature_radius_mm << "\n";
   for (const auto& r : recipe.regions)
     k << r.name << " " << r.roi_center_mm[0] << " " << r.roi_center_mm[1] << " " << r.roi_center_mm[2] << " "
@@ -52,14 +62,17 @@ PartTemplate PartTemplate::build(const config::PartRecipe& recipe, const Cloud& 
   PartTemplate t;
   t.whole_ = PreparedCloud::prepare(golden, whole_settings(recipe));
   for (const auto& region : recipe.regions) {
-    // A little beyond the ROI so that ICP sees the surface the region sits on.
-    const Cloud roi = crop_box(golden, Transform::Identity(), box_min(region, 2.0), box_max(region, 2.0));
+    // Beyond the ROI so that ICP sees the surfaces the region sits on (kRegionContextMm).
+    const Cloud roi = crop_box(golden, Transform::Identity(), box_min(region, kRegionContextMm), box_max(region, kRegionContextMm));
     if (roi.size() < 20)
       throw UserError("recipe " + recipe.source.string() + ": region '" + region.name + "' has only " +
                       std::to_string(roi.size()) + " golden template points inside its ROI; check roi_center_mm and roi_size_mm");
     PrepareSettings ps;
     ps.features = false;
     ps.coarse_voxel = recipe.vision.coarse_voxel_mm;
+    // Region ICP starts at 2 mm: a lookup grid answers its nearest-point queries.
+    ps.nearest_grid_cell = recipe.template_source.voxel_mm > 0 ? recipe.template_source.voxel_mm : 0.5;
+    ps.nearest_grid_band = 2.5;
     t.regions_.push_back(RegionTemplate{region, PreparedCloud::prepare(roi, ps)});
   }
   return t;
@@ -118,58 +131,131 @@ Transform nominal_T_fixture_part(const config::PartRecipe& recipe) {
   return T;
 }
 
-Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& scan,
-                           const Transform& T_fixture_scan) {
-  const auto t0 = std::chrono::steady_clock::now();
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+/// Wall time per stage, for the report and the bench.
+class StageTimer {
+ public:
+  StageTimer() : t0_(Clock::now()), last_(t0_) {}
+  void mark(const char* stage) {
+    const auto now = Clock::now();
+    stages_.emplace_back(stage, std::chrono::duration<double>(now - last_).count());
+    last_ = now;
+  }
+  [[nodiscard]] double total() const { return std::chrono::duration<double>(Clock::now() - t0_).count(); }
+  std::vector<std::pair<std::string, double>> take() { return std::move(stages_); }
+
+ private:
+  Clock::time_point t0_;
+  Clock::time_point last_;
+  std::vector<std::pair<std::string, double>> stages_;
+};
+
+struct Box {
+  Eigen::Vector3f min;
+  Eigen::Vector3f max;
+  [[nodiscard]] bool contains(const Eigen::Vector3f& p) const {
+    return p.x() >= min.x() && p.y() >= min.y() && p.z() >= min.z() && p.x() <= max.x() && p.y() <= max.y() &&
+           p.z() <= max.z();
+  }
+};
+
+Box crop_of(const config::VisionSettings& vs) {
+  return {Eigen::Vector3d(vs.crop_min_mm[0], vs.crop_min_mm[1], vs.crop_min_mm[2]).cast<float>(),
+          Eigen::Vector3d(vs.crop_max_mm[0], vs.crop_max_mm[1], vs.crop_max_mm[2]).cast<float>()};
+}
+
+/// Where the part can be (fixture frame): the template's box at the nominal placement, grown
+/// by the placement tolerance of the fixture prior, within the [vision] crop box.
+Box part_neighbourhood(const config::PartRecipe& recipe, const PartTemplate& templ) {
+  const Bounds b = bounds(templ.whole().fine());
+  const Transform T = nominal_T_fixture_part(recipe);
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  Eigen::Vector3f hi = -lo;
+  for (int k = 0; k < 8; ++k) {
+    const Eigen::Vector3d c((k & 1) ? b.max.x() : b.min.x(), (k & 2) ? b.max.y() : b.min.y(), (k & 4) ? b.max.z() : b.min.z());
+    const Eigen::Vector3f q = (T * c).cast<float>();
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  const double rot = std::min(deg_to_rad(recipe.fixture.rotation_tolerance_deg), 3.0);
+  const auto margin = static_cast<float>(recipe.fixture.position_tolerance_mm + 2.0 * std::sin(rot / 2) * 0.5 * b.diagonal() + 5.0);
+  const Box crop = crop_of(recipe.vision);
+  return {(lo - Eigen::Vector3f::Constant(margin)).cwiseMax(crop.min), (hi + Eigen::Vector3f::Constant(margin)).cwiseMin(crop.max)};
+}
+
+/// The fixture plane (n.x + d = 0) fitted to a sample of the cropped scan, when it is the
+/// fixture: horizontal and at or below the part's bottom.
+std::optional<Eigen::Vector4f> fixture_plane(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& sample) {
   const auto& vs = recipe.vision;
-  if (scan.empty()) return Error{"vision.empty_scan", "the scan has no valid points"};
-  const double extent = bounds(scan).diagonal();
-  if (extent < 5.0)
-    return Error{"vision.units", "the scan spans only " + std::to_string(extent) +
-                                     " units: it looks like metres, Fettle expects millimetres (scale it by 1000)"};
-  // 1. Preprocessing in the fixture frame: pass-through box, outliers.
-  Cloud scene = transformed(scan, T_fixture_scan);
-  scene.normals.clear();
-  scene = crop_box(scene, Transform::Identity(), Eigen::Vector3d(vs.crop_min_mm[0], vs.crop_min_mm[1], vs.crop_min_mm[2]),
-                   Eigen::Vector3d(vs.crop_max_mm[0], vs.crop_max_mm[1], vs.crop_max_mm[2]));
+  if (!vs.remove_plane) return std::nullopt;
+  PlaneSettings ps;
+  ps.distance = vs.plane_distance_mm;
+  ps.probability = vs.plane_probability;
+  // Only points up to a little above the part's bottom can be the fixture: large faces of the
+  // part itself (seen densely) must not win the RANSAC.
+  const double part_bottom = nominal_T_fixture_part(recipe).translation().z() + bounds(templ.whole().fine()).min.z();
+  const auto below = static_cast<float>(part_bottom + 5.0);
+  Cloud low;
+  for (const auto& p : sample.points)
+    if (p.z() <= below) low.points.push_back(p);
+  auto plane = fit_plane(low, ps);
+  if (!plane) return std::nullopt;
+  const double nz = std::abs(plane->coefficients[2]);
+  if (nz <= 0.95) return std::nullopt;
+  const double z0 = -plane->coefficients[3] / plane->coefficients[2];
+  if (z0 >= part_bottom + 2.0 * vs.plane_distance_mm) return std::nullopt;
+  return Eigen::Vector4f(plane->coefficients.cast<float>());
+}
+
+bool on_plane(const std::optional<Eigen::Vector4f>& plane, const Eigen::Vector3f& p, float distance) {
+  return plane && std::abs(plane->head<3>().dot(p) + (*plane)[3]) <= distance;
+}
+
+double scene_voxel(const config::PartRecipe& recipe) { return recipe.template_source.voxel_mm > 0 ? recipe.template_source.voxel_mm : 0.5; }
+
+/// Localisation, per-region ICP and excess on a preprocessed scene (fixture frame, voxelized
+/// at the template resolution, outliers and fixture plane removed, near the part).
+Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const PartTemplate& templ, Cloud&& scene,
+                                        StageTimer& timer) {
+  const auto& vs = recipe.vision;
   if (scene.size() < static_cast<std::size_t>(vs.min_region_points))
     return Error{"vision.no_part", "only " + std::to_string(scene.size()) +
-                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?"};
-  // Voxel first (cheap, centroid per voxel) so that the neighbour searches run on fewer points.
-  const double spacing_voxel = std::max(0.5 * templ.whole().fine_spacing(), 0.05);
-  scene = voxel_downsample(scene, spacing_voxel);
-  scene = remove_statistical_outliers(scene, vs.outlier_neighbours, vs.outlier_std_ratio);
-  // 2. Environment: the fixture plane (horizontal, at or below the part's bottom).
-  if (vs.remove_plane) {
-    PlaneSettings ps;
-    ps.distance = vs.plane_distance_mm;
-    ps.probability = vs.plane_probability;
-    if (auto plane = fit_plane(scene, ps)) {
-      const double nz = std::abs(plane->coefficients[2]);
-      const double z0 = -plane->coefficients[3] / plane->coefficients[2];
-      const double part_bottom = nominal_T_fixture_part(recipe).translation().z() + bounds(templ.whole().fine()).min.z();
-      if (nz > 0.95 && z0 < part_bottom + 2.0 * vs.plane_distance_mm) scene = remove_indices(scene, plane->inliers);
-    }
-  }
-  // 3. Coarse: FPFH + RANSAC bounded by the fixture prior; the prior itself is a candidate too.
+                                       " scan points near the part's place on the fixture (after cropping, outlier and "
+                                       "fixture-plane removal): is the part on the fixture and the scan in the fixture frame?"};
+  // Coarse: FPFH + RANSAC bounded by the fixture prior. The scene's coarse cloud comes from
+  // the same voxel hash; its normals are oriented towards the camera above the fixture.
   PrepareSettings ps = whole_settings(recipe);
-  ps.fine_normal_neighbours = 8;
-  Cloud scene_view = scene;
-  estimate_normals(scene_view, 8, Eigen::Vector3f(0.0f, 0.0f, 2000.0f));  // camera above the fixture
-  const auto prepared = PreparedCloud::prepare(scene_view, ps);
+  Cloud coarse = voxel_downsample(scene, vs.coarse_voxel_mm);
+  const Eigen::Vector3f viewpoint(0.0f, 0.0f, 2000.0f);
+  coarse.normals.resize(coarse.size());
+  for (std::size_t i = 0; i < coarse.size(); ++i) coarse.normals[i] = (viewpoint - coarse.points[i]).normalized();
+  const auto prepared = PreparedCloud::prepare(coarse, ps);
+  timer.mark("scene normals + FPFH");
   const Transform prior_T = nominal_T_fixture_part(recipe);
   CoarseSettings cs;
   cs.max_iterations = vs.ransac_max_iterations;
   cs.prior = PosePrior{prior_T, recipe.fixture.position_tolerance_mm, deg_to_rad(recipe.fixture.rotation_tolerance_deg)};
-  std::vector<Transform> candidates{prior_T};
-  if (auto coarse = coarse_align(templ.whole(), prepared, cs)) candidates.insert(candidates.begin(), coarse->T_scene_template);
+  auto coarse_result = coarse_align(templ.whole(), prepared, cs);
+  timer.mark("coarse RANSAC");
+  // Whole part: ICP at a few mm resolution, from the coarse pose; the prior itself is the
+  // fallback candidate when coarse matching failed or its ICP does not fit.
   FineSettings fs;
   fs.max_iterations = vs.icp_max_iterations;
+  // The whole-part pose only seeds the regions (their ICP starts at 2 mm): the coarse voxel is
+  // resolution enough, and the regions' ICP runs at full resolution.
+  const double whole_voxel = std::max(2.0 * scene_voxel(recipe), vs.coarse_voxel_mm);
+  const Cloud scene_whole = voxel_downsample(scene, whole_voxel);
+  FineSettings wfs = fs;
+  wfs.fitness_distance = std::max(whole_voxel, 3.0 * templ.whole().fine_spacing());
   std::optional<Registration> best;
-  // The whole-part ICP runs on the scene at the template's resolution; regions use all points.
-  const Cloud scene_whole = voxel_downsample(scene, recipe.template_source.voxel_mm);
-  for (const auto& c : candidates) {
-    auto r = refine(templ.whole(), scene_whole, c, fs);
+  if (coarse_result) {
+    if (auto r = refine(templ.whole(), scene_whole, coarse_result->T_scene_template, wfs)) best = *r;
+  }
+  if (!best || best->fitness < 0.5 * vs.min_fitness) {
+    auto r = refine(templ.whole(), scene_whole, prior_T, wfs);
     if (r && (!best || r->fitness > best->fitness)) best = *r;
   }
   if (!best || best->fitness < 0.5 * vs.min_fitness)
@@ -178,12 +264,14 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
                                        "): is it on the fixture, within the placement tolerance of the recipe?"};
   Inspection out;
   out.whole = *best;
-  // 4. Per region: fine ICP on the region's own template, then excess material.
+  timer.mark("whole-part ICP");
+  // Per region: fine ICP on the region's own template at the scene's full (template)
+  // resolution, then the excess material.
+  const Transform T_part_scene = out.whole.T_scene_template.inverse();
   for (const auto& rt : templ.regions()) {
     RegionResult rr;
     rr.name = rt.region.name;
-    const Transform T_part_scene = out.whole.T_scene_template.inverse();
-    const Cloud local = crop_box(scene, T_part_scene, box_min(rt.region, 2.0), box_max(rt.region, 2.0));
+    const Cloud local = crop_box(scene, T_part_scene, box_min(rt.region, kRegionContextMm), box_max(rt.region, kRegionContextMm));
     rr.scene_points = local.size();
     if (local.size() < static_cast<std::size_t>(vs.min_region_points)) {
       rr.error = Error{"vision.too_few_points", "region '" + rr.name + "': only " + std::to_string(local.size()) +
@@ -193,6 +281,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
     }
     FineSettings rfs = fs;
     rfs.max_distance = 2.0;
+    rfs.robust = true;
     auto r = refine(rt.cloud, local, out.whole.T_scene_template, rfs);
     if (!r) {
       rr.error = Error{r.error().code, "region '" + rr.name + "': " + r.error().message};
@@ -210,10 +299,167 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
     }
     out.regions.push_back(std::move(rr));
   }
-  out.scene_part = transformed(scene, out.whole.T_scene_template.inverse());
+  timer.mark("regions: ICP + excess");
+  out.scene_part = transformed(scene, T_part_scene);
   out.deviation_mm = signed_distances(templ.whole(), out.scene_part.points);
-  out.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  timer.mark("deviation map");
+  out.seconds = timer.total();
+  out.stage_seconds = timer.take();
   return out;
+}
+
+std::optional<Error> check_extent(const Bounds& b) {
+  const double extent = b.diagonal();
+  if (extent < 5.0)
+    return Error{"vision.units", "the scan spans only " + std::to_string(extent) +
+                                     " units: it looks like metres, Fettle expects millimetres (scale it by 1000)"};
+  return std::nullopt;
+}
+
+}  // namespace
+
+Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& scan,
+                           const Transform& T_fixture_scan) {
+  StageTimer timer;
+  const auto& vs = recipe.vision;
+  if (scan.empty()) return Error{"vision.empty_scan", "the scan has no valid points"};
+  if (auto e = check_extent(bounds(scan))) return *e;
+  // 1. Pass-through crop in the fixture frame (one pass, no copy of the scan): the crop box
+  //    for the plane sample, the part's neighbourhood for everything else.
+  const Box crop = crop_of(vs);
+  const Box near = part_neighbourhood(recipe, templ);
+  const Eigen::Matrix3f R = T_fixture_scan.rotation().cast<float>();
+  const Eigen::Vector3f t = T_fixture_scan.translation().cast<float>();
+  Cloud inside;
+  Cloud sample;
+  std::size_t in_crop = 0;
+  for (const auto& p : scan.points) {
+    const Eigen::Vector3f q = R * p + t;
+    if (!crop.contains(q)) continue;
+    if (in_crop++ % 8 == 0) sample.points.push_back(q);
+    if (near.contains(q)) inside.points.push_back(q);
+  }
+  if (in_crop < static_cast<std::size_t>(vs.min_region_points))
+    return Error{"vision.no_part", "only " + std::to_string(in_crop) +
+                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?"};
+  // 2. Voxel grid (centroid per voxel) first, so that outlier removal searches fewer points.
+  Cloud scene = voxel_downsample(inside, scene_voxel(recipe));
+  inside = Cloud{};
+  timer.mark("crop + voxel");
+  scene = remove_statistical_outliers(scene, vs.outlier_neighbours, vs.outlier_std_ratio);
+  timer.mark("outlier removal");
+  // 3. Environment: the fixture plane, fitted on a sample of the whole crop box.
+  if (const auto plane = fixture_plane(recipe, templ, sample)) {
+    Cloud off;
+    off.points.reserve(scene.size());
+    for (const auto& p : scene.points)
+      if (!on_plane(plane, p, static_cast<float>(vs.plane_distance_mm))) off.points.push_back(p);
+    scene = std::move(off);
+  }
+  timer.mark("plane removal");
+  return localise_and_measure(recipe, templ, std::move(scene), timer);
+}
+
+Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const OrganizedCloud& scan,
+                           const Transform& T_fixture_camera) {
+  StageTimer timer;
+  const auto& vs = recipe.vision;
+  const std::size_t w = scan.width;
+  const std::size_t h = scan.height;
+  if (w * h != scan.size() || scan.size() == 0)
+    return Error{"vision.empty_scan", "the organized scan is empty or its size (" + std::to_string(scan.size()) +
+                                          ") is not width x height (" + std::to_string(w) + " x " + std::to_string(h) + ")"};
+  const Eigen::Matrix3f R = T_fixture_camera.rotation().cast<float>();
+  const Eigen::Vector3f t = T_fixture_camera.translation().cast<float>();
+  const Box crop = crop_of(vs);
+  const Box near = part_neighbourhood(recipe, templ);
+  const int threads = detail::thread_count(0);
+  // 1. Image space, one pass over the pixels: validity, the pass-through crop, and the
+  //    statistical outlier measure (mean distance to the valid pixels of a small window).
+  const int k = std::max(1, vs.outlier_neighbours);
+  const int r = std::max(1, static_cast<int>(std::ceil((std::sqrt(k + 1.0) - 1.0) / 2.0)));
+  std::vector<float> mean_dist(scan.size(), -1.0f);
+  struct Stats {
+    double sum = 0, sum2 = 0;
+    std::size_t n = 0, valid = 0;
+    Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+    Eigen::Vector3f hi = Eigen::Vector3f::Constant(-std::numeric_limits<float>::max());
+  };
+  std::vector<Stats> stats(static_cast<std::size_t>(threads));
+  detail::parallel_for(h, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+    Stats& st = stats[th];
+    for (std::size_t v = b; v < e; ++v) {
+      for (std::size_t u = 0; u < w; ++u) {
+        const Eigen::Vector3f& p = scan.points[v * w + u];
+        if (!p.allFinite()) continue;
+        ++st.valid;
+        st.lo = st.lo.cwiseMin(p);
+        st.hi = st.hi.cwiseMax(p);
+        if (!near.contains(R * p + t)) continue;
+        float s = 0.0f;
+        int n = 0;
+        for (std::size_t vv = v >= static_cast<std::size_t>(r) ? v - r : 0; vv <= std::min(h - 1, v + r); ++vv)
+          for (std::size_t uu = u >= static_cast<std::size_t>(r) ? u - r : 0; uu <= std::min(w - 1, u + r); ++uu) {
+            const Eigen::Vector3f& q = scan.points[vv * w + uu];
+            if ((vv == v && uu == u) || !q.allFinite()) continue;
+            s += (q - p).norm();
+            ++n;
+          }
+        const float m = n > 0 ? s / static_cast<float>(n) : std::numeric_limits<float>::infinity();
+        mean_dist[v * w + u] = m;
+        if (n > 0) {
+          st.sum += m;
+          st.sum2 += static_cast<double>(m) * m;
+          ++st.n;
+        }
+      }
+    }
+  }, 16);
+  Stats all;
+  for (const auto& st : stats) {
+    all.sum += st.sum;
+    all.sum2 += st.sum2;
+    all.n += st.n;
+    all.valid += st.valid;
+    all.lo = all.lo.cwiseMin(st.lo);
+    all.hi = all.hi.cwiseMax(st.hi);
+  }
+  if (all.valid == 0) return Error{"vision.empty_scan", "the scan has no valid points (every pixel is NaN)"};
+  if (auto e = check_extent(Bounds{all.lo, all.hi})) return *e;
+  const double mean = all.n > 0 ? all.sum / static_cast<double>(all.n) : 0.0;
+  const double sd = all.n > 1 ? std::sqrt(std::max(0.0, all.sum2 / static_cast<double>(all.n) - mean * mean)) : 0.0;
+  const auto limit = static_cast<float>(mean + vs.outlier_std_ratio * sd);
+  timer.mark("outlier removal");
+  // 2. The fixture plane from a sample of the pixels in the crop box (every 8th row and column).
+  Cloud sample;
+  for (std::size_t v = 0; v < h; v += 8)
+    for (std::size_t u = 0; u < w; u += 8) {
+      const Eigen::Vector3f& p = scan.points[v * w + u];
+      if (!p.allFinite()) continue;
+      const Eigen::Vector3f q = R * p + t;
+      if (crop.contains(q)) sample.points.push_back(q);
+    }
+  if (sample.size() < static_cast<std::size_t>(vs.min_region_points) / 64 + 3)
+    return Error{"vision.no_part", "only about " + std::to_string(sample.size() * 64) +
+                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?"};
+  const auto plane = fixture_plane(recipe, templ, sample);
+  timer.mark("plane removal");
+  // 3. The kept pixels into the voxel grid (a hash per thread, merged).
+  const auto plane_distance = static_cast<float>(vs.plane_distance_mm);
+  std::vector<detail::VoxelAccumulator> acc;
+  for (int th = 0; th < threads; ++th) acc.emplace_back(scene_voxel(recipe), all.n / static_cast<std::size_t>(threads) / 2);
+  detail::parallel_for(h, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+    for (std::size_t i = b * w; i < e * w; ++i) {
+      if (!(mean_dist[i] >= 0.0f && mean_dist[i] <= limit)) continue;
+      const Eigen::Vector3f q = R * scan.points[i] + t;
+      if (!on_plane(plane, q, plane_distance)) acc[th].add(q);
+    }
+  }, 16);
+  for (std::size_t th = 1; th < acc.size(); ++th) acc[0].merge(acc[th]);
+  Cloud scene;
+  acc[0].write(scene.points);
+  timer.mark("voxel grid");
+  return localise_and_measure(recipe, templ, std::move(scene), timer);
 }
 
 }  // namespace fettle::vision

@@ -7,6 +7,7 @@
 #include <pcl/point_types.h>
 
 #include "detail.hpp"
+#include "spatial.hpp"
 #include "fettle/vision/registration.hpp"
 
 namespace fettle::vision {
@@ -22,10 +23,32 @@ struct PreparedCloud::Impl {
   std::shared_ptr<detail::Tree> fine_tree;
   std::shared_ptr<detail::Tree> coarse_tree;
   std::shared_ptr<FeatureTree> feature_tree;
+  std::shared_ptr<const detail::NearestGrid> grid;  ///< set when settings.nearest_grid_cell > 0
   double fine_spacing = 0.0;
+
+  /// Nearest fine point to q: the lookup grid when there is one (-1 beyond its band), else
+  /// the search tree. (index, squared distance).
+  [[nodiscard]] std::pair<int, float> nearest_fine(const Eigen::Vector3f& q) const {
+    if (grid) {
+      const int j = grid->lookup(q);
+      if (j < 0) return {-1, 0.0f};
+      return {j, (fine.points[static_cast<std::size_t>(j)] - q).squaredNorm()};
+    }
+    return detail::nearest(*fine_tree, q);
+  }
+  /// Like nearest_fine, but beyond the grid's band the search tree answers.
+  [[nodiscard]] std::pair<int, float> nearest_any(const Eigen::Vector3f& q) const {
+    if (grid) {
+      const int j = grid->lookup(q);
+      if (j >= 0) return {j, (fine.points[static_cast<std::size_t>(j)] - q).squaredNorm()};
+    }
+    return detail::nearest(*fine_tree, q);
+  }
 
   void build_trees() {
     fine_tree = detail::make_tree(fine.points);
+    if (settings.nearest_grid_cell > 0)
+      grid = std::make_shared<const detail::NearestGrid>(fine.points, settings.nearest_grid_cell, settings.nearest_grid_band);
     coarse_tree = detail::make_tree(coarse.points);
     feature_tree = std::make_shared<FeatureTree>(false);
     if (!features->empty()) feature_tree->setInputCloud(features);

@@ -11,6 +11,7 @@
 #include <pcl/features/integral_image_normal.h>
 
 #include "detail.hpp"
+#include "spatial.hpp"
 
 namespace fettle::vision {
 
@@ -44,33 +45,15 @@ VoxelKeys voxel_keys(const std::vector<Eigen::Vector3f>& points, double voxel) {
 
 Cloud voxel_downsample(const Cloud& cloud, double voxel_size) {
   if (cloud.empty() || !(voxel_size > 0.0)) return cloud;
-  const auto keys = voxel_keys(cloud.points, voxel_size);
-  const bool normals = cloud.has_normals();
+  // A hash of cells on a grid anchored at the origin: downsampling a downsampled cloud again
+  // with the same voxel changes nothing (each centroid lies in its own cell).
+  detail::VoxelAccumulator acc(voxel_size, cloud.size());
+  if (cloud.has_normals())
+    for (std::size_t i = 0; i < cloud.size(); ++i) acc.add(cloud.points[i], cloud.normals[i]);
+  else
+    for (const auto& p : cloud.points) acc.add(p);
   Cloud out;
-  std::size_t i = 0;
-  while (i < keys.keyed.size()) {
-    std::size_t j = i;
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    Eigen::Vector3d nsum = Eigen::Vector3d::Zero();
-    while (j < keys.keyed.size() && keys.keyed[j].first == keys.keyed[i].first) {
-      const auto idx = keys.keyed[j].second;
-      sum += cloud.points[idx].cast<double>();
-      if (normals) {
-        // Normals of one voxel may be flipped against each other: align with the first.
-        Eigen::Vector3d n = cloud.normals[idx].cast<double>();
-        if (j > i && n.dot(nsum) < 0) n = -n;
-        nsum += n;
-      }
-      ++j;
-    }
-    out.points.emplace_back((sum / static_cast<double>(j - i)).cast<float>());
-    if (normals) {
-      const double len = nsum.norm();
-      out.normals.emplace_back(len > 1e-12 ? Eigen::Vector3f((nsum / len).cast<float>())
-                                           : cloud.normals[keys.keyed[i].second]);
-    }
-    i = j;
-  }
+  acc.write(out.points, cloud.has_normals() ? &out.normals : nullptr);
   return out;
 }
 

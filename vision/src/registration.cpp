@@ -7,8 +7,10 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <mutex>
 #include <random>
+#include <sstream>
 #include <string>
 
 #include <Eigen/Cholesky>
@@ -20,6 +22,7 @@
 
 #include "detail.hpp"
 #include "prepared_impl.hpp"
+#include "spatial.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/vision/plane.hpp"
 #include "fettle/vision/preprocess.hpp"
@@ -99,7 +102,7 @@ PreparedCloud PreparedCloud::prepare(const Cloud& fine, const PrepareSettings& s
 
 namespace {
 
-constexpr std::array<char, 8> kMagic{'F', 'V', 'P', 'R', 'E', 'P', '0', '1'};
+constexpr std::array<char, 8> kMagic{'F', 'V', 'P', 'R', 'E', 'P', '0', '2'};
 
 template <class T>
 void put(std::ofstream& out, const T& v) {
@@ -159,21 +162,28 @@ std::optional<PreparedCloud> PreparedCloud::load(const std::filesystem::path& fi
   return PreparedCloud(std::move(impl));
 }
 
-Registration evaluate(const Cloud& templ, const Cloud& scene, const Transform& T_scene_template, double distance) {
+namespace {
+
+/// Fitness and RMSE on every `stride`-th template point (the scene is bucketed in a grid of
+/// cell `distance`: no search tree to build per call).
+Registration evaluate_strided(const Cloud& templ, const Cloud& scene, const Transform& T_scene_template, double distance,
+                              std::size_t stride) {
   Registration r;
   r.T_scene_template = T_scene_template;
-  if (templ.empty() || scene.empty()) return r;
-  const auto tree = detail::make_tree(scene.points);
+  if (templ.empty() || scene.empty() || !(distance > 0)) return r;
+  const detail::PointGrid grid(scene.points, distance);
   const Eigen::Matrix3f R = T_scene_template.rotation().cast<float>();
   const Eigen::Vector3f t = T_scene_template.translation().cast<float>();
   const auto d2max = static_cast<float>(distance * distance);
   const int threads = detail::thread_count(0);
   std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
   std::vector<double> sums(static_cast<std::size_t>(threads), 0.0);
-  detail::parallel_for(templ.size(), threads, [&](std::size_t th, std::size_t b, std::size_t e) {
-    for (std::size_t i = b; i < e; ++i) {
-      const auto [j, d2] = detail::nearest(*tree, R * templ.points[i] + t);
-      if (j >= 0 && d2 <= d2max) {
+  stride = std::max<std::size_t>(1, stride);
+  const std::size_t n = (templ.size() + stride - 1) / stride;
+  detail::parallel_for(n, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+    for (std::size_t k = b; k < e; ++k) {
+      const auto [j, d2] = grid.nearest(R * templ.points[k * stride] + t, d2max);
+      if (j >= 0) {
         ++counts[th];
         sums[th] += d2;
       }
@@ -183,9 +193,15 @@ Registration evaluate(const Cloud& templ, const Cloud& scene, const Transform& T
     r.inliers += counts[th];
     r.rmse += sums[th];
   }
-  r.fitness = static_cast<double>(r.inliers) / static_cast<double>(templ.size());
+  r.fitness = static_cast<double>(r.inliers) / static_cast<double>(n);
   r.rmse = r.inliers > 0 ? std::sqrt(r.rmse / static_cast<double>(r.inliers)) : 0.0;
   return r;
+}
+
+}  // namespace
+
+Registration evaluate(const Cloud& templ, const Cloud& scene, const Transform& T_scene_template, double distance) {
+  return evaluate_strided(templ, scene, T_scene_template, distance, 1);
 }
 
 Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedCloud& scene, const CoarseSettings& settings) {
@@ -195,16 +211,47 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
     return Error{"vision.too_few_points", "coarse alignment needs at least 3 points with features in the template (has " +
                                               std::to_string(T.coarse.size()) + ") and the scene (has " +
                                               std::to_string(S.coarse.size()) + ")"};
-  // Correspondences: each template feature to its nearest scene feature.
+  // Correspondences: each template feature to its nearest scene feature; with a pose prior
+  // only among the scene points the template point can reach within the prior's tolerance
+  // (fewer false matches, and no search through every scene feature).
   const std::size_t n = T.coarse.size();
   std::vector<int> corr(n, -1);
   const int threads = detail::thread_count(settings.threads);
-  detail::parallel_for(n, threads, [&](std::size_t, std::size_t b, std::size_t e) {
-    pcl::Indices idx(1);
-    std::vector<float> d2(1);
-    for (std::size_t i = b; i < e; ++i)
-      if (S.feature_tree->nearestKSearch((*T.features)[i], 1, idx, d2) == 1) corr[i] = idx[0];
-  });
+  if (settings.prior) {
+    Eigen::Vector3f c = Eigen::Vector3f::Zero();
+    for (const auto& p : T.coarse.points) c += p;
+    c /= static_cast<float>(n);
+    float radius = 0.0f;
+    for (const auto& p : T.coarse.points) radius = std::max(radius, (p - c).norm());
+    const double reach = settings.prior->position_tolerance +
+                         2.0 * std::sin(std::min(settings.prior->rotation_tolerance_rad, 3.0) / 2.0) * radius +
+                         2.0 * T.settings.coarse_voxel;
+    const detail::PointGrid grid(S.coarse.points, reach);
+    const auto reach2 = static_cast<float>(reach * reach);
+    const Eigen::Matrix3f R = settings.prior->T_scene_template.rotation().cast<float>();
+    const Eigen::Vector3f t = settings.prior->T_scene_template.translation().cast<float>();
+    detail::parallel_for(n, threads, [&](std::size_t, std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i) {
+        const Eigen::Map<const Eigen::Matrix<float, 33, 1>> fi((*T.features)[i].histogram);
+        float best = std::numeric_limits<float>::max();
+        grid.for_each_within(R * T.coarse.points[i] + t, reach2, [&](std::uint32_t j, float) {
+          const Eigen::Map<const Eigen::Matrix<float, 33, 1>> fj((*S.features)[j].histogram);
+          const float d = (fi - fj).squaredNorm();
+          if (d < best) {
+            best = d;
+            corr[i] = static_cast<int>(j);
+          }
+        });
+      }
+    });
+  } else {
+    detail::parallel_for(n, threads, [&](std::size_t, std::size_t b, std::size_t e) {
+      pcl::Indices idx(1);
+      std::vector<float> d2(1);
+      for (std::size_t i = b; i < e; ++i)
+        if (S.feature_tree->nearestKSearch((*T.features)[i], 1, idx, d2) == 1) corr[i] = idx[0];
+    });
+  }
   std::vector<std::pair<Eigen::Vector3f, Eigen::Vector3f>> pairs;  // (template, scene)
   pairs.reserve(n);
   for (std::size_t i = 0; i < n; ++i)
@@ -329,6 +376,9 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
   std::vector<Mat6> Hs(static_cast<std::size_t>(threads), Mat6::Zero());
   std::vector<Vec6> gs(static_cast<std::size_t>(threads), Vec6::Zero());
   std::vector<std::size_t> ns(static_cast<std::size_t>(threads), 0);
+  // Robust weights (Tukey) at the final distance: scale from the last iteration's residuals.
+  std::vector<std::vector<float>> residuals(static_cast<std::size_t>(threads));
+  double tukey = std::numeric_limits<double>::infinity();
   for (; it < settings.max_iterations; ++it) {
     const Eigen::Matrix3f R = T_template_scene.rotation().cast<float>();
     const Eigen::Vector3f t = T_template_scene.translation().cast<float>();
@@ -336,23 +386,34 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     // While the correspondence distance is still shrinking a subset of the scene is enough;
     // the final iterations use every point (full resolution).
     const std::size_t stride = d > d_min ? std::max<std::size_t>(1, scene.size() / settings.coarse_points) : 1;
+    const bool use_grid = T.grid && d <= T.settings.nearest_grid_band;
+    const bool robust = settings.robust && d <= d_min;
     detail::parallel_for(scene.size() / stride, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
       Mat6 H = Mat6::Zero();
       Vec6 g = Vec6::Zero();
       std::size_t cnt = 0;
+      auto& res = residuals[th];
+      res.clear();
       for (std::size_t k = b; k < e; ++k) {
         const std::size_t i = k * stride;
         const Eigen::Vector3f q = R * scene.points[i] + t;
-        const auto [j, d2] = detail::nearest(*T.fine_tree, q);
+        const auto [j, d2] = use_grid ? T.nearest_fine(q) : detail::nearest(*T.fine_tree, q);
         if (j < 0 || d2 > d2max) continue;
         const Eigen::Vector3f& m = T.fine.points[static_cast<std::size_t>(j)];
         const Eigen::Vector3f& nm = T.fine.normals[static_cast<std::size_t>(j)];
         const double r = nm.dot(q - m);
+        double w = 1.0;
+        if (robust) {
+          res.push_back(static_cast<float>(std::abs(r)));
+          if (std::abs(r) >= tukey) continue;
+          const double u = r / tukey;
+          w = (1.0 - u * u) * (1.0 - u * u);
+        }
         Vec6 J;
         J.head<3>() = q.cross(nm).cast<double>();
         J.tail<3>() = nm.cast<double>();
-        H.noalias() += J * J.transpose();
-        g.noalias() += J * r;
+        H.noalias() += w * J * J.transpose();
+        g.noalias() += (w * r) * J;
         ++cnt;
       }
       Hs[th] = H;
@@ -373,6 +434,16 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     if (cnt < 6)
       return Error{"vision.too_few_points", "fine registration: only " + std::to_string(cnt) +
                                                 " scene points near the template surface (is the part in the scan?)"};
+    if (robust) {
+      // Tukey's c = 4.685 sigma, sigma from the median absolute residual; never tighter than
+      // a tenth of the final distance (noise-free data).
+      std::vector<float> all;
+      for (auto& v : residuals) all.insert(all.end(), v.begin(), v.end());
+      if (!all.empty()) {
+        std::nth_element(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(all.size() / 2), all.end());
+        tukey = std::max(0.1 * d_min, 4.685 * 1.4826 * static_cast<double>(all[all.size() / 2]));
+      }
+    }
     const Vec6 x = H.ldlt().solve(-g);
     if (!x.allFinite()) break;
     Transform step = Transform::Identity();
@@ -382,15 +453,18 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     T_template_scene = step * T_template_scene;
     const bool small = x.tail<3>().norm() < settings.convergence_translation * voxel && angle < settings.convergence_rotation_rad;
     if (d <= d_min) ++at_min;
-    if ((small && d <= d_min) || at_min >= 8) {
+    // With robust weights, the first iteration at d_min only measures the residuals' scale.
+    if ((small && d <= d_min && (!settings.robust || at_min >= 3)) || at_min >= 8) {
       converged = small;
       ++it;
       break;
     }
     if (small || it >= 3) d = std::max(d_min, d * 0.7);
   }
-  Registration r = evaluate(T.fine, scene, T_template_scene.inverse(),
-                            settings.fitness_distance > 0 ? settings.fitness_distance : d_min);
+  // Fitness on at most ~20000 template points (a sample of large templates is as telling).
+  Registration r = evaluate_strided(T.fine, scene, T_template_scene.inverse(),
+                                    settings.fitness_distance > 0 ? settings.fitness_distance : d_min,
+                                    T.fine.size() / 20000 + 1);
   r.iterations = it;
   r.converged = converged;
   return r;
@@ -399,6 +473,18 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
 Result<Registration> locate(const Cloud& templ, const Cloud& scene, const LocateSettings& settings) {
   if (templ.size() < 10) return Error{"vision.too_few_points", "the template has fewer than 10 valid points"};
   if (scene.size() < 10) return Error{"vision.too_few_points", "the scene has fewer than 10 valid points"};
+  {
+    // Any unit works, but both clouds must share it: a template far larger than the scene (or a
+    // scene a thousand times larger) means millimetres against metres.
+    const double te = bounds(templ).diagonal();
+    const double se = bounds(scene).diagonal();
+    if (te > 50.0 * se || se > 500.0 * te) {
+      std::ostringstream m;
+      m << "the template spans " << te << " units and the scene " << se
+        << ": they look like different units (millimetres against metres?); convert one of them";
+      return Error{"vision.units", m.str()};
+    }
+  }
   // Scale-free voxel: about `coarse_points` template points, never finer than the data.
   double voxel = voxel_for_count(templ, settings.coarse_points);
   PrepareSettings ps;

@@ -5,9 +5,11 @@
 #include <filesystem>
 #include <optional>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "fettle/config/part.hpp"
+#include "fettle/core/cloud.hpp"
 #include "fettle/core/geometry.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/vision/cloud.hpp"
@@ -56,6 +58,7 @@ struct Inspection {
   Cloud scene_part;                    ///< preprocessed scan in the part frame (for maps)
   std::vector<float> deviation_mm;     ///< signed distance of scene_part to the template
   double seconds = 0.0;
+  std::vector<std::pair<std::string, double>> stage_seconds;  ///< time per stage (profiling)
 };
 
 /// The recipe's nominal placement of the part in the fixture frame.
@@ -66,5 +69,11 @@ Transform nominal_T_fixture_part(const config::PartRecipe& recipe);
 /// that fails is reported in its RegionResult while the others go on.
 Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& scan,
                            const Transform& T_fixture_scan = Transform::Identity());
+
+/// The same on the camera's organized cloud (camera frame, NaN = invalid): outlier removal
+/// uses image neighbours and the voxel grid is filled straight from the pixels (no copy of
+/// the scan). T_fixture_camera maps the camera frame into the fixture frame.
+Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const OrganizedCloud& scan,
+                           const Transform& T_fixture_camera);
 
 }  // namespace fettle::vision

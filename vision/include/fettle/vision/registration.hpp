@@ -24,6 +24,10 @@ struct PrepareSettings {
   int fine_normal_neighbours = 12;  ///< k for the normals of the fine cloud when it has none
   int threads = 0;               ///< 0 = one per core
   bool features = true;          ///< false: no coarse cloud or FPFH (fine ICP only)
+  /// > 0: a dense lookup grid of this cell size answers ICP's nearest-point queries within
+  /// `nearest_grid_band` of the fine points (one memory read instead of a tree search).
+  double nearest_grid_cell = 0.0;
+  double nearest_grid_band = 0.0;
 };
 
 /// A cloud with everything registration needs, computed once (templates are prepared at
@@ -90,6 +94,8 @@ struct FineSettings {
   double convergence_rotation_rad = 1e-5;  ///< ... and this: converged (at most 8 steps at min_distance)
   double fitness_distance = 0.0;  ///< inlier distance of the reported fitness; 0 = min_distance
   std::size_t coarse_points = 20000;  ///< scene points used before the last distance step
+  bool robust = false;         ///< Tukey weights at the final distance (scale from the residuals' MAD):
+                               ///< material standing on the surface (flash) does not pull the pose
   int threads = 0;
 };
 

@@ -1,0 +1,138 @@
+// Accuracy of the vision stage on the simulator's ground truth (issue 4): seeded pump-body
+// castings placed within +-3 mm / +-3 degrees on the fixture, scanned with the default
+// 3.2 MP scanner (sigma_z 0.05 mm, dropouts, flying pixels, outliers), inspected through the
+// organized-cloud path. Per region: pose error (at the region's ROI centre) median <= 0.05 mm
+// and <= 0.05 degrees, worst <= 0.1 mm and <= 0.1 degrees, every region found; the riser's
+// excess volume within 5 % of the truth.
+//
+// Seeds: FETTLE_ACCURACY_SEEDS (default 8; `make accuracy-vision` runs 50).
+//
+// DISABLED (not run by ctest / CI) because the vision stage does not meet it yet: on 3 seeds
+// the region errors were 0.09-0.58 mm / 0.07-0.40 degrees (median) and the riser region
+// fails its 0.6 fitness. `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
+// remove the DISABLED_ prefix once it passes.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "fettle/config/load.hpp"
+#include "fettle/sim/sim.hpp"
+#include "fettle/vision/inspect.hpp"
+#include "test_support.hpp"
+
+using namespace fettle::vision;
+using fettle::Transform;
+using fettle::Vec3;
+
+namespace {
+
+int seed_count() {
+  const char* env = std::getenv("FETTLE_ACCURACY_SEEDS");
+  const int n = env != nullptr ? std::atoi(env) : 8;
+  return std::max(1, n);
+}
+
+fettle::config::PartRecipe accuracy_recipe() {
+  auto recipe = fettle::config::load_part(FETTLE_SOURCE_DIR "/config/parts/pump-body.toml");
+  recipe.vision.cache = false;
+  // The placement is what the test varies (+-3 mm, +-3 degrees: the shipped values). The
+  // body's smooth form deviation (+-0.2 mm over 90-200 mm waves) is left out: it tilts a
+  // region's surface by up to ~0.5 degrees against the part frame, so a region's "true pose"
+  // would not be the part's pose any more.
+  recipe.geometry.variation.form_deviation_mm = 0.0;
+  return recipe;
+}
+
+PartTemplate golden_template(const fettle::config::PartRecipe& recipe) {
+  const auto golden = fettle::sim::Casting::golden(recipe);
+  Cloud cloud;
+  for (const auto& s : golden.sample_golden_surface(0.25)) {
+    cloud.points.push_back(s.position_mm);
+    cloud.normals.push_back(s.normal);
+  }
+  return PartTemplate::build(recipe, cloud);
+}
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? 0.0 : v[v.size() / 2];
+}
+
+}  // namespace
+
+TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHundredthsOfADegree) {
+  const auto recipe = accuracy_recipe();
+  ASSERT_DOUBLE_EQ(recipe.geometry.variation.placement_tolerance_mm, 3.0);
+  ASSERT_DOUBLE_EQ(recipe.geometry.variation.placement_tolerance_deg, 3.0);
+  const auto templ = golden_template(recipe);
+  fettle::sim::ScannerConfig sc;
+  ASSERT_DOUBLE_EQ(sc.noise.sigma_z_mm, 0.05);
+  const fettle::sim::Scanner scanner{sc};
+
+  const int seeds = seed_count();
+  std::map<std::string, std::vector<double>> err_mm;
+  std::map<std::string, std::vector<double>> err_deg;
+  std::vector<double> all_mm;
+  std::vector<double> all_deg;
+  std::vector<double> riser_volume_error;
+  int failures = 0;
+  for (int seed = 1; seed <= seeds; ++seed) {
+    const auto casting = fettle::sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
+    const auto capture = scanner.capture(casting, 0.0);
+    const auto r = inspect(recipe, templ, capture.cloud, capture.truth.T_base_camera);
+    if (!r) {
+      ADD_FAILURE() << "seed " << seed << ": " << r.error().message;
+      ++failures;
+      continue;
+    }
+    ASSERT_EQ(r->regions.size(), recipe.regions.size());
+    for (std::size_t i = 0; i < r->regions.size(); ++i) {
+      const auto& rr = r->regions[i];
+      if (!rr.ok()) {
+        ADD_FAILURE() << "seed " << seed << ": " << rr.error->message;
+        ++failures;
+        continue;
+      }
+      const auto& roi = recipe.regions[i].roi_center_mm;
+      const auto e = test::pose_error_at(rr.registration.T_scene_template, capture.truth.T_base_part,
+                                         Vec3(roi[0], roi[1], roi[2]));
+      const double deg = fettle::rad_to_deg(e.rotation_rad);
+      err_mm[rr.name].push_back(e.translation);
+      err_deg[rr.name].push_back(deg);
+      all_mm.push_back(e.translation);
+      all_deg.push_back(deg);
+      const auto& truth = capture.truth.regions[i];
+      if (truth.type == fettle::config::RegionType::riser && truth.volume_mm3 > 0)
+        riser_volume_error.push_back((rr.excess.volume_mm3 - truth.volume_mm3) / truth.volume_mm3);
+    }
+  }
+  // The numbers, for the issue and for humans.
+  std::printf("%d seeds, %d region failures\n", seeds, failures);
+  std::printf("%-20s %12s %12s %12s %12s\n", "region", "median mm", "worst mm", "median deg", "worst deg");
+  for (const auto& [name, v] : err_mm) {
+    std::printf("%-20s %12.4f %12.4f %12.4f %12.4f\n", name.c_str(), median(v), *std::max_element(v.begin(), v.end()),
+                median(err_deg[name]), *std::max_element(err_deg[name].begin(), err_deg[name].end()));
+  }
+  double worst_volume = 0.0;
+  for (double v : riser_volume_error) worst_volume = std::max(worst_volume, std::abs(v));
+  std::printf("riser excess volume: worst error %.2f %% over %zu castings\n", 100.0 * worst_volume,
+              riser_volume_error.size());
+
+  EXPECT_EQ(failures, 0);
+  ASSERT_FALSE(all_mm.empty());
+  EXPECT_LE(median(all_mm), 0.05);
+  EXPECT_LE(median(all_deg), 0.05);
+  EXPECT_LE(*std::max_element(all_mm.begin(), all_mm.end()), 0.1);
+  EXPECT_LE(*std::max_element(all_deg.begin(), all_deg.end()), 0.1);
+  for (const auto& [name, v] : err_mm) {
+    EXPECT_LE(median(v), 0.05) << name;
+    EXPECT_LE(median(err_deg[name]), 0.05) << name;
+  }
+  EXPECT_EQ(riser_volume_error.size(), static_cast<std::size_t>(seeds - failures / 4));
+  EXPECT_LE(worst_volume, 0.05);
+}
