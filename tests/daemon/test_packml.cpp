@@ -46,7 +46,7 @@ TEST(PackML, ProductionPathFromStoppedToExecuteAndComplete) {
   EXPECT_EQ(*m.state_complete(), State::completing);
   EXPECT_EQ(*m.state_complete(), State::complete);
   EXPECT_EQ(*m.command(Command::reset), State::resetting);
-  EXPECT_EQ(m.transitions(), 8);
+  EXPECT_EQ(m.transitions(), 7);
 }
 
 TEST(PackML, HoldSuspendStopAbortClear) {

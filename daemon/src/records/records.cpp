@@ -125,6 +125,21 @@ Result<std::vector<std::string>> Records::open() {
     }
     sequence_ = std::max<std::uint64_t>(sequence_, j.value("seq", 0ULL));
   }
+  // A torn last line (no newline: power lost during an append) is terminated, so the next
+  // line appended does not merge with it.
+  if (std::ifstream tail(journal_path(), std::ios::binary | std::ios::ate); tail && tail.tellg() > 0) {
+    tail.seekg(-1, std::ios::end);
+    char last = '\n';
+    tail.get(last);
+    if (last != '\n') {
+      const int fd = ::open(journal_path().c_str(), O_WRONLY | O_APPEND | O_CLOEXEC);
+      if (fd >= 0) {
+        if (::write(fd, "\n", 1) != 1) log->warn("{}: cannot terminate the torn last line", journal_path().string());
+        (void)::fsync(fd);
+        ::close(fd);
+      }
+    }
+  }
   std::vector<std::string> interrupted;
   for (auto& c : cycles_) {
     if (c.result != "running") continue;
