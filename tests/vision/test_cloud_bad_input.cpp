@@ -152,3 +152,16 @@ TEST_F(CloudBadInput, HeaderClaimingBillionsOfPointsDoesNotAllocateGigabytes) {
     EXPECT_LT(out.max_rss_mb, 1024) << f.filename();
   }
 }
+
+TEST_F(CloudBadInput, PcdHeadersThatCrashPclAreRefusedFirst) {
+  // PCL 1.13's PCDReader segfaults on each of these (found by fuzz_cloud).
+  const std::string good = pcd_header("1", "1", "ascii") + "1 2 3\n";
+  const auto no_size = write("no_size.pcd", std::string(good).replace(good.find("SIZE"), 4, ",IZE"));
+  const auto binary_line = write("binary_line.pcd", std::string(good).insert(good.find("VERSION"), std::string("\0\0HB\0\n", 6)));
+  const auto mismatch = write("mismatch.pcd", std::string(good).replace(good.find("TYPE F F F"), 10, "TYPE F F"));
+  for (const auto& f : {no_size, binary_line, mismatch}) {
+    const auto out = load_in_child(f);
+    EXPECT_TRUE(out.how == ChildOutcome::How::returned) << f.filename() << ": " << out.detail;
+    EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("PCD header"))) << f;
+  }
+}

@@ -77,10 +77,19 @@ std::string implausible_header(const std::filesystem::path& file, bool pcd) {
       if (t.empty() || t.size() > 19 || t.find_first_not_of("0123456789") != std::string::npos) return;
       out = std::stoull(t);
     };
+    static const std::vector<std::string> keys = {"VERSION", "FIELDS", "SIZE",   "TYPE", "COUNT",
+                                                   "WIDTH",   "HEIGHT", "VIEWPOINT", "POINTS", "DATA"};
     while (std::getline(in, line)) {
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      // Only printable header lines with known keys (PCL 1.13 crashes on some others).
+      if (!std::all_of(line.begin(), line.end(), [](char c) { return c >= 0x20 && c < 0x7F; }))
+        return "the PCD header has a line with binary bytes: not a PCD file, or corrupt";
       std::istringstream w(line);
       std::string key;
       w >> key;
+      if (key.empty() || key[0] == '#') continue;
+      if (std::find(keys.begin(), keys.end(), key) == keys.end())
+        return "the PCD header has an unknown line '" + line.substr(0, 40) + "': not a PCD file, or corrupt";
       if (key == "FIELDS" || key == "TYPE") {
         auto& v = key == "FIELDS" ? fields : types;
         for (std::string x; w >> x;) v.push_back(x);
