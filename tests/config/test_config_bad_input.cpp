@@ -121,9 +121,11 @@ TEST_F(ConfigBadInput, DuplicateTableIsReported) {
 }
 
 TEST_F(ConfigBadInput, ValueWhereATableIsExpected) {
-  const auto d = problems(replace(cell_, "[logging]\nlevel = \"info\"", "logging = \"info\""));
+  // At the top: after [[cell.recipes]] the key would belong to the recipe table.
+  const auto d = problems("logging = \"info\"\n" + replace(cell_, "[logging]\nlevel = \"info\"", ""));
   ASSERT_EQ(d.size(), 1U) << all(d);
   EXPECT_EQ(d[0].key, "logging");
+  EXPECT_EQ(d[0].line, 1);
 }
 
 TEST_F(ConfigBadInput, TableWhereAValueIsExpected) {
