@@ -24,6 +24,13 @@ int evaluate_cmd(const Args& a) {
     throw fettle::UserError("give one --trajectory per --seeds entry (" + std::to_string(a.seeds.size()) + ")");
   CellLimits limits;
   const Scanner scanner(app::scanner_config(a.scanner, &limits));
+  // Every trajectory is read and checked before any casting is ground or scanned.
+  std::vector<fettle::Trajectory> trajectories;
+  for (const auto& path : a.trajectories) {
+    trajectories.push_back(read_trajectory(path));
+    if (auto s = validate_trajectory(trajectories.back(), limits); !s)
+      throw fettle::UserError(path.string() + ": " + s.error().message);
+  }
   std::vector<Casting> ground;
   std::vector<std::vector<Capture>> scans;
   std::vector<Evaluation> template_eval;
@@ -31,7 +38,7 @@ int evaluate_cmd(const Args& a) {
     Casting c = Casting::make(recipe, a.seeds[i]);
     std::vector<Gouge> gouges;
     if (!a.trajectories.empty()) {
-      const auto t = read_trajectory(a.trajectories[i]);
+      const auto& t = trajectories[i];
       GrindOptions opt;
       opt.tool = find_tool(recipe, t.segment_regions.empty() ? recipe.tools.front().name : [&] {
         for (const auto& r : recipe.regions)

@@ -29,10 +29,13 @@ int scan(const Args& a) {
   const Scanner scanner(app::scanner_config(a.scanner));
   const auto& positions = scanner.config().photo_positions_mm;
   for (std::size_t v = 0; v < positions.size(); ++v) {
+    std::fprintf(stderr, "rendering view %zu of %zu (slide %.1f mm, %d x %d px)\n", v + 1, positions.size(),
+                 positions[v], scanner.config().intrinsics.width, scanner.config().intrinsics.height);
     const auto t1 = std::chrono::steady_clock::now();
     const Capture c = scanner.capture(casting, positions[v], v);
     const double render_s = app::seconds_since(t1);
     const std::string stem = "view" + std::to_string(v);
+    std::fprintf(stderr, "writing view %zu of %zu to %s\n", v + 1, positions.size(), a.out.string().c_str());
     if (auto s = write_capture(a.out, stem, c); !s) throw fettle::UserError(s.error().message);
     if (v == 0 && !a.png.empty())
       if (auto s = write_height_png(a.png, c); !s) throw fettle::UserError(s.error().message);

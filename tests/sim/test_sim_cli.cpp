@@ -1,0 +1,239 @@
+// fettle-sim scan | grind | evaluate as a person runs them: the files they write, determinism,
+// progress on stderr, and bad part files and trajectories refused before anything runs.
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <regex>
+#include <sstream>
+#include <string>
+
+#include <nlohmann/json.hpp>
+
+#include "sim_test_util.hpp"
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+namespace {
+
+const std::string kSim = std::string(FETTLE_BIN_DIR) + "/fettle-sim";
+
+struct Run {
+  int exit_code = -1;
+  std::string out;  ///< stdout
+  std::string err;  ///< stderr
+};
+
+std::string slurp(const fs::path& p) {
+  std::ifstream f(p, std::ios::binary);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+/// Runs fettle-sim with `args`, stdout and stderr captured separately.
+Run sim(const std::string& args, const fs::path& scratch) {
+  const fs::path err = scratch / "stderr.txt";
+  const std::string command = kSim + " " + args + " 2>" + err.string() + " </dev/null";
+  FILE* pipe = ::popen(command.c_str(), "r");
+  Run r;
+  std::array<char, 4096> buf{};
+  while (pipe != nullptr && std::fgets(buf.data(), buf.size(), pipe) != nullptr) r.out += buf.data();
+  const int status = pipe != nullptr ? ::pclose(pipe) : -1;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.err = slurp(err);
+  return r;
+}
+
+std::string replaced(std::string text, const std::string& from, const std::string& to) {
+  const auto at = text.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  if (at != std::string::npos) text.replace(at, from.size(), to);
+  return text;
+}
+
+class SimCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() / ("fettle-sim-cli-" + std::to_string(::getpid()) + "-" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+    ASSERT_TRUE(fs::exists(kSim)) << kSim << " is not built";
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  /// A ball-12 sweep along the straight parting-line flash of casting `seed`, `clearance_mm`
+  /// above the face it stands on (poses T_base_tool, from the casting's true placement).
+  fs::path flash_sweep(std::uint64_t seed, double clearance_mm, const std::string& name) const {
+    const auto recipe = sim_test::pump_body();
+    const auto c = fettle::sim::Casting::make(recipe, seed);
+    const auto& f = recipe.geometry.straight_flashes.at(0);
+    const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
+    fettle::Trajectory t;
+    t.part_id = recipe.id;
+    t.segment_regions = {f.region};
+    for (double s : {-8.0, f.length_mm.max + 8.0}) {
+      fettle::TrajectoryPoint q;
+      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + 6.0 + clearance_mm);
+      q.speed_mm_s = 20;
+      q.spindle_rpm = 9000;
+      t.points.push_back(q);
+    }
+    const fs::path p = dir_ / name;
+    EXPECT_TRUE(fettle::sim::write_trajectory_json(p, t).ok());
+    return p;
+  }
+
+  fs::path dir_;
+};
+
+const std::string kPart = sim_test::kPumpBody.string();
+
+TEST_F(SimCli, ScanWritesAMillionPointPlyRangeImagesAndGroundTruth) {
+  const auto r = sim("scan --part " + kPart + " --seed 4 --out " + (dir_ / "scan").string(), dir_);
+  ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+  const fs::path d = dir_ / "scan";
+  // PLY: the valid points of the default 2064 x 1544 scanner, at least 1 M.
+  const auto points = fettle::sim::read_ply(d / "view0.ply");
+  ASSERT_TRUE(points.ok()) << points.error().message;
+  EXPECT_GE(points->size(), 1'000'000u);
+  EXPECT_LE(points->size(), std::size_t{2064} * 1544);
+  for (std::size_t i = 0; i < points->size(); i += 50'000) {
+    const auto& p = (*points)[i];
+    EXPECT_TRUE(p.allFinite());
+    EXPECT_GT(p.z(), 300.0f);  // camera frame, mm: the scene is ~600 mm away
+    EXPECT_LT(p.z(), 700.0f);
+  }
+  // Range images: Coord3D_C16 with its description, float32 with the same size.
+  EXPECT_EQ(fs::file_size(d / "view0.c16"), std::uintmax_t{2064} * 1544 * 2);
+  EXPECT_EQ(fs::file_size(d / "view0.f32"), std::uintmax_t{2064} * 1544 * 4);
+  const auto c16 = nlohmann::json::parse(slurp(d / "view0.c16.json"));
+  EXPECT_EQ(c16.at("width"), 2064);
+  EXPECT_EQ(c16.at("height"), 1544);
+  EXPECT_EQ(c16.at("pixel_format"), "Coord3D_C16");
+  EXPECT_TRUE(fs::exists(d / "view0.pcd"));
+  // Ground truth: poses and per-region material, as printed on stdout.
+  const auto truth = nlohmann::json::parse(slurp(d / "view0.truth.json"));
+  EXPECT_EQ(truth.at("seed"), 4);
+  EXPECT_TRUE(truth.contains("T_base_camera"));
+  EXPECT_TRUE(truth.contains("T_base_part"));
+  ASSERT_EQ(truth.at("regions").size(), 4u);
+  for (const auto& region : truth.at("regions")) {
+    EXPECT_GT(region.at("volume_mm3").get<double>(), 0.0) << region.dump();
+    EXPECT_GT(region.at("max_height_mm").get<double>(), 0.0) << region.dump();
+    EXPECT_THAT(r.out, HasSubstr(region.at("name").get<std::string>()));
+  }
+  EXPECT_THAT(r.out, HasSubstr("view 0:"));
+  // Progress of the long steps on stderr, results on stdout.
+  EXPECT_THAT(r.err, HasSubstr("built casting 4"));
+  EXPECT_THAT(r.err, HasSubstr("rendering view 1 of 1"));
+}
+
+TEST_F(SimCli, ScanIsByteIdenticalForTheSameSeedAndDiffersForAnother) {
+  const std::string small = " --width 688 --positions-mm 0 150";
+  ASSERT_EQ(sim("scan --part " + kPart + " --seed 9 --out " + (dir_ / "a").string() + small, dir_).exit_code, 0);
+  ASSERT_EQ(sim("scan --part " + kPart + " --seed 9 --out " + (dir_ / "b").string() + small, dir_).exit_code, 0);
+  ASSERT_EQ(sim("scan --part " + kPart + " --seed 10 --out " + (dir_ / "c").string() + small, dir_).exit_code, 0);
+  std::size_t files = 0;
+  for (const auto& e : fs::directory_iterator(dir_ / "a")) {
+    const auto name = e.path().filename();
+    const std::string a = slurp(e.path());
+    EXPECT_FALSE(a.empty()) << name;
+    EXPECT_EQ(a, slurp(dir_ / "b" / name)) << name << " differs between two runs with seed 9";
+    ++files;
+  }
+  EXPECT_EQ(files, 2u * 7u);  // two views: ply, pcd, c16, c16.json, f32, f32.json, truth.json
+  EXPECT_NE(slurp(dir_ / "a" / "view1.c16"), slurp(dir_ / "c" / "view1.c16"));
+  EXPECT_NE(slurp(dir_ / "a" / "view0.truth.json"), slurp(dir_ / "c" / "view0.truth.json"));
+}
+
+TEST_F(SimCli, GrindRemovesTheFlashAndEvaluateTabulatesTheResult) {
+  const auto traj = flash_sweep(3, 0.05, "sweep.json");
+  const auto g = sim("grind --part " + kPart + " --seed 3 --trajectory " + traj.string() + " --out " +
+                         (dir_ / "g").string() + " --rescan --width 516",
+                     dir_);
+  ASSERT_EQ(g.exit_code, 0) << g.out << g.err;
+  EXPECT_THAT(g.out, HasSubstr("with tool ball-12"));
+  EXPECT_THAT(g.err, HasSubstr("grinding: "));  // progress
+  const auto j = nlohmann::json::parse(slurp(dir_ / "g" / "grind.json"));
+  EXPECT_GT(j.at("removed_mm3").get<double>(), 10.0);
+  bool seen = false;
+  for (const auto& r : j.at("regions")) {
+    if (r.at("name") != "side-parting-line") {
+      EXPECT_EQ(r.at("volume_before_mm3"), r.at("volume_after_mm3")) << r.dump();  // not touched
+      continue;
+    }
+    seen = true;
+    EXPECT_LT(r.at("volume_after_mm3").get<double>(), 0.05 * r.at("volume_before_mm3").get<double>()) << r.dump();
+  }
+  EXPECT_TRUE(seen);
+  EXPECT_TRUE(fs::exists(dir_ / "g" / "ground-view0.ply"));
+  EXPECT_TRUE(fs::exists(dir_ / "g" / "ground-view0.truth.json"));
+
+  // Evaluate: the same grind on castings 3 and 5, template comparison and batch consistency.
+  const auto traj5 = flash_sweep(5, 0.05, "sweep5.json");
+  const auto e = sim("evaluate --part " + kPart + " --seeds 3,5 --trajectory " + traj.string() + " --trajectory " +
+                         traj5.string() + " --width 516",
+                     dir_);
+  ASSERT_EQ(e.exit_code, 0) << e.out << e.err;
+  EXPECT_THAT(e.out, HasSubstr("Template comparison (after grinding)"));
+  EXPECT_THAT(e.out, HasSubstr("Batch consistency (after grinding)"));
+  EXPECT_THAT(e.out, HasSubstr("side-parting-line"));
+  EXPECT_THAT(e.err, HasSubstr("scanning casting 5"));
+}
+
+TEST_F(SimCli, PartFileWithImpossibleGeometryIsRefusedWithFileAndLine) {
+  const std::string text = slurp(sim_test::kPumpBody);
+  struct Case {
+    std::string from, to, key;
+  };
+  for (const auto& c : {Case{"radius_mm = 45.0", "radius_mm = -45.0", "radius_mm"},
+                        Case{"roi_center_mm = [82.0, -48.0, 47.0]", "roi_center_mm = [482.0, -48.0, 47.0]", "off the body"},
+                        Case{"center_mm = [-82.0, 48.0]", "center_mm = [-382.0, 48.0]", "off the body"}}) {
+    const fs::path bad = dir_ / "bad.toml";
+    std::ofstream(bad) << replaced(text, c.from, c.to);
+    const auto r = sim("scan --part " + bad.string() + " --seed 1 --out " + (dir_ / "out").string(), dir_);
+    EXPECT_EQ(r.exit_code, 1) << c.to << "\n" << r.out << r.err;
+    EXPECT_TRUE(std::regex_search(r.err, std::regex(std::regex_replace(bad.string(), std::regex("[.]"), "\\.") +
+                                                    ":[0-9]+:")))
+        << "no file:line in: " << r.err;
+    EXPECT_THAT(r.err, HasSubstr(c.key));
+    EXPECT_FALSE(fs::exists(dir_ / "out")) << "wrote output for a bad part file";
+  }
+}
+
+TEST_F(SimCli, TrajectoryWithNaNOrFarOutsideTheCellIsRefusedAndNotExecuted) {
+  const std::string header = "x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment\n";
+  std::ofstream(dir_ / "nan.csv") << header << "-100,-70,50,1,0,0,0,20,9000,0\n"
+                                  << "0,-70,nan,1,0,0,0,20,9000,0\n";
+  std::ofstream(dir_ / "far.csv") << header << "-100,-70,50,1,0,0,0,20,9000,0\n"
+                                  << "5000,-70,50,1,0,0,0,20,9000,0\n";
+  for (const char* name : {"nan.csv", "far.csv"}) {
+    const fs::path out = dir_ / (std::string(name) + ".out");
+    const auto r = sim("grind --part " + kPart + " --seed 1 --trajectory " + (dir_ / name).string() + " --out " +
+                           out.string(),
+                       dir_);
+    EXPECT_EQ(r.exit_code, 1) << name << "\n" << r.out << r.err;
+    EXPECT_THAT(r.err, HasSubstr((dir_ / name).string()));
+    EXPECT_THAT(r.err, HasSubstr("trajectory point 1"));
+    EXPECT_THAT(r.err, HasSubstr("nothing was executed"));
+    EXPECT_THAT(r.out, Not(HasSubstr("executed")));
+    EXPECT_THAT(r.err, Not(HasSubstr("grinding: ")));
+    EXPECT_FALSE(fs::exists(out / "grind.json"));
+  }
+  // The same refusal in evaluate: nothing is ground or scanned.
+  const auto e = sim("evaluate --part " + kPart + " --seeds 1 --trajectory " + (dir_ / "far.csv").string(), dir_);
+  EXPECT_EQ(e.exit_code, 1) << e.out << e.err;
+  EXPECT_THAT(e.err, HasSubstr("outside the cell"));
+  EXPECT_THAT(e.err, Not(HasSubstr("scanning casting")));
+}
+
+}  // namespace
