@@ -24,7 +24,7 @@ target_link_libraries(fettle_pcl INTERFACE ${PCL_LIBRARIES})
 target_compile_definitions(fettle_pcl INTERFACE ${PCL_DEFINITIONS})
 add_library(fettle::pcl ALIAS fettle_pcl)
 
-find_package(OpenCV 4.6 REQUIRED COMPONENTS core imgproc imgcodecs calib3d)
+find_package(OpenCV 4.6 REQUIRED COMPONENTS core imgproc imgcodecs calib3d aruco)
 
 if(FETTLE_BUILD_TESTS)
   find_package(GTest REQUIRED)

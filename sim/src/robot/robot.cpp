@@ -38,6 +38,7 @@ struct RobotSim::Impl : std::enable_shared_from_this<Impl> {
   std::shared_ptr<spdlog::logger> log_;
   RobotSimStats stats_;
   ExecutedHandler on_executed_;
+  ExecutedHandler on_arrived_;
   std::shared_ptr<Session> active_;
   std::vector<std::weak_ptr<Session>> sessions_;
   int port_ = 0;
@@ -449,6 +450,11 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
 
   void step() {
     if (exec_idx_ == stored_.size()) {
+      if (server_->on_arrived_) {  // the simulated world sees the robot there before DONE goes out
+        Trajectory t;
+        t.points = executed_;
+        server_->on_arrived_(t);
+      }
       send("DONE " + std::to_string(id_) + " " + std::to_string(stored_.size()), false);
       ++server_->stats_.trajectories_executed;
       st_ = St::uploaded;
@@ -551,6 +557,7 @@ RobotSim::RobotSim(asio::io_context& io, RobotSimOptions options)
     : impl_(std::make_shared<Impl>(io, std::move(options))) {}
 RobotSim::~RobotSim() {
   impl_->on_executed_ = nullptr;
+  impl_->on_arrived_ = nullptr;
   impl_->close();
 }
 void RobotSim::start() { impl_->start(); }
@@ -560,6 +567,7 @@ int RobotSim::port() const { return impl_->port_; }
 void RobotSim::set_faults(const RobotFaults& faults) { impl_->opts_.faults = faults; }
 const RobotFaults& RobotSim::faults() const { return impl_->opts_.faults; }
 void RobotSim::on_executed(ExecutedHandler h) { impl_->on_executed_ = std::move(h); }
+void RobotSim::on_arrived(ExecutedHandler h) { impl_->on_arrived_ = std::move(h); }
 const RobotSimStats& RobotSim::stats() const { return impl_->stats_; }
 
 }  // namespace fettle::sim

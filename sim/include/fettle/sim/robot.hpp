@@ -84,6 +84,10 @@ class RobotSim {
   void set_faults(const RobotFaults& faults);
   [[nodiscard]] const RobotFaults& faults() const;
   void on_executed(ExecutedHandler h);
+  /// Gets the executed trajectory when a run completes, BEFORE DONE is sent: a simulated world
+  /// (e.g. a camera that shows what the robot holds) updates here, so it is current by the
+  /// time the client hears DONE. Runs on the io_context's thread and delays DONE while it runs.
+  void on_arrived(ExecutedHandler h);
   [[nodiscard]] const RobotSimStats& stats() const;
 
  private:
