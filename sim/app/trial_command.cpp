@@ -208,8 +208,10 @@ int trial(const Args& a) {
     std::fprintf(stderr, "[%zu/%zu] seed %llu: scan", done + 1, count, static_cast<unsigned long long>(seed));
     Casting casting = Casting::make(recipe, seed);
     const auto captures = scan_all(scanner, casting, 0);
-    std::fprintf(stderr, ", process");
-    auto out = fettle::daemon::process(loaded, cell, to_views(captures));
+    auto out = fettle::daemon::process(loaded, cell, to_views(captures),
+                                       [](std::size_t, std::size_t, const std::string& step) {
+                                         if (step != "done") std::fprintf(stderr, ", %s", step.c_str());
+                                       });
     if (!out) {
       std::fprintf(stderr, ": FAILED: %s\n", out.error().message.c_str());
       sj["error"] = out.error().message;
