@@ -122,10 +122,14 @@ TEST_F(CalibrateCli, BadBoardIsAUserError) {
   EXPECT_THAT(r.output, HasSubstr("is not COLSxROWS"));
 }
 
-TEST_F(CalibrateCli, LiveHandEyeIsNotAvailableYet) {
+// The end-to-end runs of --live are in test_calibrate_live.cpp (simulated robot and camera).
+TEST_F(CalibrateCli, LiveHandEyeSaysWhatItNeeds) {
   const auto r = run_fettle("calibrate hand-eye --live --out " + (dir_ / "c.toml").string());
   EXPECT_EQ(r.exit_code, 1) << r.output;
-  EXPECT_THAT(r.output, HasSubstr("--live is not available yet"));
+  EXPECT_THAT(r.output, HasSubstr("--live needs --config CELL.toml"));
+  const auto r2 = run_fettle("calibrate hand-eye --live --config x.toml --out " + (dir_ / "c.toml").string());
+  EXPECT_EQ(r2.exit_code, 1) << r2.output;
+  EXPECT_THAT(r2.output, HasSubstr("exactly one of --poses FILE or --auto N"));
 }
 
 TEST_F(CalibrateCli, HandEyeFromImagesFindsTBaseCamera) {
