@@ -21,29 +21,9 @@
 #include <gtest/gtest.h>
 
 #include "fettle/daemon/control.hpp"
+#include "test_systemd_support.hpp"  // TempDir
 
 namespace fettle::test {
-
-/// A private (mode 0700) directory under /tmp, removed with everything in it.
-class TempDir {
- public:
-  TempDir() {
-    std::string t = (std::filesystem::temp_directory_path() / "fettle-ctl-XXXXXX").string();
-    if (::mkdtemp(t.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
-    path_ = t;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    std::filesystem::permissions(path_, std::filesystem::perms::owner_all, ec);
-    std::filesystem::remove_all(path_, ec);
-  }
-  TempDir(const TempDir&) = delete;
-  TempDir& operator=(const TempDir&) = delete;
-  [[nodiscard]] const std::filesystem::path& path() const { return path_; }
-
- private:
-  std::filesystem::path path_;
-};
 
 /// Answers like a daemon in Idle with five finished cycles. Runs on the loop thread.
 class FakeHandler : public daemon::control::Handler {

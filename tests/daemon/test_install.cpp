@@ -7,7 +7,6 @@
 
 #include <gtest/gtest.h>
 
-#include "test_control_support.hpp"
 #include "test_systemd_support.hpp"
 
 namespace {
