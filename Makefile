@@ -11,7 +11,7 @@ FUZZ_SECONDS ?= 300
 # ctest arguments for test-asan, e.g. ASAN_CTEST_ARGS="-LE slow" in CI.
 ASAN_CTEST_ARGS ?=
 
-.PHONY: all deps configure build test test-unit test-asan fuzz demo bench accuracy-vision clean
+.PHONY: all deps configure build test test-unit test-asan fuzz demo bench accuracy accuracy-vision clean
 
 all: build
 
@@ -54,6 +54,12 @@ demo: build
 
 bench: build
 	@scripts/bench $(BUILD_DIR)
+
+# Closed-loop accuracy on 50 simulated castings (scan, plan, grind, re-scan, evaluate; the
+# paper's Table 1/2): fettle-sim trial. Results in $(BUILD_DIR)/accuracy/.
+accuracy: build
+	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \
+	  --seeds 1-50 --out $(BUILD_DIR)/accuracy
 
 # The vision accuracy test of issue 4 on 50 simulated castings (disabled in ctest until it passes).
 accuracy-vision: build

@@ -60,6 +60,18 @@ Result<vision::Cloud> fuse(const std::vector<View>& views) {
 Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views,
                                   std::vector<StepTiming>& timings, const Progress& progress, std::size_t total) {
   auto t0 = Clock::now();
+  if (views.size() == 1 && views.front().cloud.height > 1) {
+    // one organized view: the vision stage works on the camera's cloud itself (image-space outliers,
+    // voxel grid filled from the pixels)
+    if (views.front().cloud.count_valid() == 0)
+      return Error{"pipeline.empty_view", "step fuse: view 0 (slide at " + std::to_string(views.front().slide_position_mm) +
+                                              " mm) has no valid point: check the camera and its exposure"};
+    report(progress, 1, total, "vision");
+    auto ins = vision::inspect(loaded.recipe, loaded.templ, views.front().cloud, views.front().T_base_camera);
+    timings.push_back({"vision", ms_since(t0)});
+    if (!ins) return step_error("vision", ins.error());
+    return ins;
+  }
   report(progress, 0, total, "fuse");
   auto scan = fuse(views);
   if (!scan) return scan.error();
@@ -188,14 +200,19 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     m.excess_max_height_mm = rr.excess.max_height_mm;
     out.regions.push_back(m);
     if (!selected(options, region.name)) continue;
-    if (!rr.ok())
+    // A region whose own fine fit is weak (a big riser hides most of its pad) is planned on
+    // the whole part's pose; a region that could not be registered at all fails the cycle.
+    const bool weak = !rr.ok() && rr.error->code == "vision.low_fitness";
+    if (!rr.ok() && !weak)
       return Error{rr.error->code, "step vision, region '" + region.name + "': " + rr.error->message};
     planning::RegionInput in;
     in.region = &region;
     in.tool = &loaded.tool_for(region);
-    in.T_base_part = rr.registration.T_scene_template;  // scene = base (= fixture) frame
+    // scene = base (= fixture) frame
+    in.T_base_part = weak ? out.T_base_part : rr.registration.T_scene_template;
+    const Transform T_part_region = in.T_base_part.inverse() * rr.registration.T_scene_template;
     in.excess_points_part.reserve(rr.excess.points.size());
-    for (const auto& p : rr.excess.points) in.excess_points_part.push_back(p.cast<double>());
+    for (const auto& p : rr.excess.points) in.excess_points_part.push_back(T_part_region * p.cast<double>());
     in.template_sdf = loaded.template_sdf;
     inputs.push_back(std::move(in));
   }
