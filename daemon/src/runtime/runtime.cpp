@@ -271,24 +271,10 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     publish_state();
     const auto gen = generation;
     auto self = shared_from_this();
-    switch (s) {
-      case State::execute:
-        asio::post(io, [self] { self->maybe_start_cycle(); });
-        break;
-      case State::resetting:
-      case State::starting:
-      case State::completing:
-      case State::holding:
-      case State::unholding:
-      case State::suspending:
-      case State::unsuspending:
-      case State::stopping:
-      case State::aborting:
-      case State::clearing:
-        asio::co_spawn(io, act(s, gen), asio::detached);
-        break;
-      default:
-        break;
+    if (s == State::execute) {
+      asio::post(io, [self] { self->maybe_start_cycle(); });
+    } else if (PackmlMachine::is_acting(s)) {  // the other acting states do their work, then SC
+      asio::co_spawn(io, act(s, gen), asio::detached);
     }
   }
 
