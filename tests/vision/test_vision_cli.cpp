@@ -98,6 +98,8 @@ TEST(FettleLocate, SceneWithoutTheObjectIsExit1NotASuccess) {
   const auto r = run_fettle("locate --template " + data("milk.pcd") + " --scene " + data("sac_plane_test.pcd") +
                             " --min-fitness 0.5");
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_THAT(r.err, HasSubstr("not found"));
+  // Either no consistent feature match or a match below the fitness floor: both are "not found"
+  // and both carry the same error code (which one depends on the RANSAC seed, not on the machine).
+  EXPECT_THAT(r.err, HasSubstr("[vision.no_match]"));
   EXPECT_TRUE(r.out.empty());
 }

@@ -2,6 +2,7 @@
 // Private helpers of fettle::vision: PCL conversions, search trees, a tiny parallel_for.
 #include <algorithm>
 #include <cstddef>
+#include <cstdint>
 #include <thread>
 #include <vector>
 
@@ -31,6 +32,22 @@ inline std::shared_ptr<Tree> make_tree(const std::vector<Eigen::Vector3f>& point
   if (!points.empty()) tree->setInputCloud(to_pcl(points));
   return tree;
 }
+
+/// SplitMix64 (Steele, Lea, Flood 2014): a tiny counter-based generator, cheap to seed per
+/// RANSAC iteration so hypotheses do not depend on how iterations are spread over threads.
+struct SplitMix64 {
+  using result_type = std::uint64_t;
+  std::uint64_t state;
+  explicit SplitMix64(std::uint64_t seed) : state(seed) {}
+  static constexpr result_type min() { return 0; }
+  static constexpr result_type max() { return ~result_type{0}; }
+  result_type operator()() {
+    std::uint64_t z = (state += 0x9E3779B97F4A7C15ULL);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    return z ^ (z >> 31);
+  }
+};
 
 inline int thread_count(int requested) {
   if (requested > 0) return requested;

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <barrier>
+#include <cstdint>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -266,67 +268,86 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
   for (const auto& p : T.coarse.points) centroid += p.cast<double>();
   centroid /= static_cast<double>(T.coarse.size());
 
+  // Hypotheses are drawn from a counter-based generator keyed on (seed, iteration) and evaluated in
+  // fixed blocks; the adaptive iteration limit (Eq. 10) is applied only between blocks and ties go
+  // to the lowest iteration. The result therefore depends on the seed alone, not on the number of
+  // threads or on how they were scheduled.
   struct Best {
     std::size_t count = 0;
+    std::int64_t iteration = std::numeric_limits<std::int64_t>::max();
     Eigen::Matrix4f M = Eigen::Matrix4f::Identity();
   };
-  std::vector<Best> best(static_cast<std::size_t>(threads));
-  std::atomic<std::int64_t> done{0};
-  std::atomic<std::int64_t> limit{settings.max_iterations};
-  std::vector<std::thread> pool;
-  auto worker = [&](std::size_t th) {
-    std::mt19937_64 rng(settings.seed + 7919 * th);
+  const auto better = [](const Best& a, const Best& b) {
+    return a.count > b.count || (a.count == b.count && a.iteration < b.iteration);
+  };
+  constexpr std::int64_t kBlock = 256;
+  const auto n_threads = static_cast<std::size_t>(threads);
+  std::vector<Best> local(n_threads);
+  Best top;
+  std::int64_t limit = settings.max_iterations;
+  std::int64_t block_begin = 0;
+  bool finished = limit <= 0;
+  std::barrier sync(static_cast<std::ptrdiff_t>(n_threads), [&]() noexcept {
+    for (const auto& b : local)
+      if (better(b, top)) top = b;
+    if (top.count > 0)
+      limit = std::min(limit, ransac_iterations(settings.probability,
+                                                static_cast<double>(top.count) / static_cast<double>(pairs.size()), 3,
+                                                settings.max_iterations));
+    block_begin += kBlock;
+    finished = block_begin >= limit;
+  });
+  auto hypothesis = [&](std::int64_t iteration, Best& best) {
+    detail::SplitMix64 rng(settings.seed ^ (0x9E3779B97F4A7C15ULL * static_cast<std::uint64_t>(iteration + 1)));
     std::uniform_int_distribution<std::size_t> pick(0, pairs.size() - 1);
+    const std::array<std::size_t, 3> s{pick(rng), pick(rng), pick(rng)};
+    if (s[0] == s[1] || s[0] == s[2] || s[1] == s[2]) return;
+    for (int a = 0; a < 3; ++a) {
+      const int b = (a + 1) % 3;
+      const float lt = (pairs[s[a]].first - pairs[s[b]].first).norm();
+      const float ls = (pairs[s[a]].second - pairs[s[b]].second).norm();
+      if (lt < min_edge || ls < min_edge) return;
+      if (std::min(lt, ls) / std::max(lt, ls) < settings.edge_similarity) return;
+    }
     Eigen::Matrix3d src;  // double: Eigen's umeyama in float trips GCC 12's -Warray-bounds
     Eigen::Matrix3d dst;
-    while (done.fetch_add(1) < limit.load()) {
-      std::array<std::size_t, 3> s{pick(rng), pick(rng), pick(rng)};
-      if (s[0] == s[1] || s[0] == s[2] || s[1] == s[2]) continue;
-      bool ok = true;
-      for (int a = 0; a < 3 && ok; ++a) {
-        const int b = (a + 1) % 3;
-        const float lt = (pairs[s[a]].first - pairs[s[b]].first).norm();
-        const float ls = (pairs[s[a]].second - pairs[s[b]].second).norm();
-        if (lt < min_edge || ls < min_edge) ok = false;
-        else if (std::min(lt, ls) / std::max(lt, ls) < settings.edge_similarity) ok = false;
-      }
-      if (!ok) continue;
-      for (int a = 0; a < 3; ++a) {
-        src.col(a) = pairs[s[a]].first.cast<double>();
-        dst.col(a) = pairs[s[a]].second.cast<double>();
-      }
-      const Eigen::Matrix4f M = Eigen::umeyama(src, dst, false).cast<float>();
-      if (!M.allFinite()) continue;
-      if (settings.prior) {
-        Transform Tm = Transform::Identity();
-        Tm.matrix() = M.cast<double>();
-        const Transform delta = settings.prior->T_scene_template.inverse() * Tm;
-        if (rotation_angle_rad(delta) > settings.prior->rotation_tolerance_rad) continue;
-        if ((Tm * centroid - settings.prior->T_scene_template * centroid).norm() > settings.prior->position_tolerance) continue;
-      }
-      const Eigen::Matrix3f R = M.topLeftCorner<3, 3>();
-      const Eigen::Vector3f t = M.topRightCorner<3, 1>();
-      std::size_t count = 0;
-      for (const auto& [pt, ps] : pairs) count += (R * pt + t - ps).squaredNorm() <= inlier2 ? 1 : 0;
-      if (count > best[th].count) {
-        best[th] = {count, M};
-        const auto k = ransac_iterations(settings.probability, static_cast<double>(count) / static_cast<double>(pairs.size()),
-                                         3, settings.max_iterations);
-        std::int64_t cur = limit.load();
-        while (k < cur && !limit.compare_exchange_weak(cur, k)) {
-        }
-      }
+    for (int a = 0; a < 3; ++a) {
+      src.col(a) = pairs[s[a]].first.cast<double>();
+      dst.col(a) = pairs[s[a]].second.cast<double>();
+    }
+    const Eigen::Matrix4f M = Eigen::umeyama(src, dst, false).cast<float>();
+    if (!M.allFinite()) return;
+    if (settings.prior) {
+      Transform Tm = Transform::Identity();
+      Tm.matrix() = M.cast<double>();
+      const Transform delta = settings.prior->T_scene_template.inverse() * Tm;
+      if (rotation_angle_rad(delta) > settings.prior->rotation_tolerance_rad) return;
+      if ((Tm * centroid - settings.prior->T_scene_template * centroid).norm() > settings.prior->position_tolerance) return;
+    }
+    const Eigen::Matrix3f R = M.topLeftCorner<3, 3>();
+    const Eigen::Vector3f t = M.topRightCorner<3, 1>();
+    std::size_t count = 0;
+    for (const auto& [pt, ps] : pairs) count += (R * pt + t - ps).squaredNorm() <= inlier2 ? 1 : 0;
+    const Best candidate{count, iteration, M};
+    if (better(candidate, best)) best = candidate;
+  };
+  auto worker = [&](std::size_t th) {
+    while (!finished) {
+      const std::int64_t end = std::min(block_begin + kBlock, limit);
+      for (std::int64_t i = block_begin + static_cast<std::int64_t>(th); i < end; i += static_cast<std::int64_t>(n_threads))
+        hypothesis(i, local[th]);
+      sync.arrive_and_wait();
     }
   };
-  for (std::size_t th = 1; th < static_cast<std::size_t>(threads); ++th) pool.emplace_back(worker, th);
+  std::vector<std::thread> pool;
+  for (std::size_t th = 1; th < n_threads; ++th) pool.emplace_back(worker, th);
   worker(0);
   for (auto& p : pool) p.join();
-  const auto top = std::max_element(best.begin(), best.end(), [](const Best& a, const Best& b) { return a.count < b.count; });
-  if (top->count < 3)
+  if (top.count < 3)
     return Error{"vision.no_match", settings.prior ? "no feature match within the fixture pose prior"
                                                    : "no consistent feature match between template and scene"};
   // Refit on all inlier correspondences (twice, as the inlier set may grow).
-  Eigen::Matrix4f M = top->M;
+  Eigen::Matrix4f M = top.M;
   for (int pass = 0; pass < 2; ++pass) {
     const Eigen::Matrix3f R = M.topLeftCorner<3, 3>();
     const Eigen::Vector3f t = M.topRightCorner<3, 1>();
@@ -346,7 +367,7 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
   Transform Tm = Transform::Identity();
   Tm.matrix() = M.cast<double>();
   Registration r = evaluate(T.coarse, S.coarse, Tm, inlier);
-  r.iterations = static_cast<int>(std::min<std::int64_t>(done.load(), limit.load()));
+  r.iterations = static_cast<int>(std::min(block_begin, limit));
   r.converged = true;
   return r;
 }
