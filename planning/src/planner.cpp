@@ -88,8 +88,10 @@ Transform frame_from(const Vec3& origin, const Vec3& z_axis, const Vec3& x_hint)
   return T;
 }
 
-/// Moves the tool along `dir` until it keeps at least `clearance_mm` from the template.
-/// Returns false if it cannot within max_mm.
+/// Moves the tool along `dir` by the smallest distance (≤ max_mm) at which it keeps at least
+/// `clearance_mm` from the template. Returns false if there is none. The penetration is not
+/// monotonic along `dir` (backing away from one wall can run into another feature), so the
+/// first clear position is bracketed by 0.25 mm steps before it is refined.
 bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDistance& sdf, const Vec3& dir,
               double clearance_mm, double max_mm) {
   auto pen = [&](double s) {
@@ -98,9 +100,15 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
     return tool_penetration_mm(tool, T, sdf) + clearance_mm;
   };
   if (pen(0.0) <= 1e-6) return true;
-  if (pen(max_mm) > 1e-6) return false;
-  double lo = 0.0, hi = max_mm;
-  for (int it = 0; it < 25; ++it) {
+  constexpr double kStep = 0.25;
+  double lo = 0.0, hi = -1.0;
+  for (double s = std::min(kStep, max_mm); hi < 0.0; s = std::min(s + kStep, max_mm)) {
+    if (pen(s) <= 1e-6) hi = s;
+    else lo = s;
+    if (s >= max_mm) break;
+  }
+  if (hi < 0.0) return false;
+  for (int it = 0; it < 12; ++it) {  // 0.25 mm / 2^12: 0.06 µm
     const double mid = 0.5 * (lo + hi);
     (pen(mid) > 1e-6 ? lo : hi) = mid;
   }
@@ -199,11 +207,18 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
       T_part_tool = cp.T_part_tool;
       retreat = cp.tool_axis;
     }
-    if (!back_off(tool, T_part_tool, in.template_sdf, retreat, region.allowance_mm, settings.max_backoff_mm))
+    if (!back_off(tool, T_part_tool, in.template_sdf, retreat, region.allowance_mm, settings.max_backoff_mm)) {
+      Transform T_far = T_part_tool;
+      T_far.translation() += settings.max_backoff_mm * retreat;
+      Vec3 where = Vec3::Zero();
+      const double depth = tool_penetration_mm(tool, T_far, in.template_sdf, &where);
       return region_error(region.name, "gouge",
                           "contact point " + std::to_string(i) + " at " + fmt(P) +
                               ": the tool cannot reach it without cutting the template (backed off " +
-                              fmt(settings.max_backoff_mm) + " mm); use a smaller tool, another chamfer_deg or contact");
+                              fmt(settings.max_backoff_mm) + " mm, the tool still reaches " + fmt(depth + region.allowance_mm) +
+                              " mm into the template and its allowance at " + fmt(where) +
+                              "); use a smaller tool, another chamfer_deg or contact");
+    }
     poses.push_back(T_part_tool);
     normals.push_back(n);
   }
@@ -416,15 +431,26 @@ std::vector<double> layer_levels(const std::vector<double>& heights_mm, double d
   return levels;
 }
 
-double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf) {
+double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
+                           Vec3* deepest) {
   const double R = tool_radius(tool);
   const Vec3 z = T_part_tool.linear().col(2);
   const Vec3 tip = T_part_tool.translation();
-  if (tool.shape == config::ToolShape::ball) return R - sdf(tip + R * z);  // exact for a true distance
+  if (tool.shape == config::ToolShape::ball) {
+    if (deepest != nullptr) *deepest = tip + R * z;
+    return R - sdf(tip + R * z);  // exact for a true distance
+  }
   // cylinder (cones conservatively as cylinders): end face discs, rim rings
   double worst = -std::numeric_limits<double>::infinity();
+  auto probe = [&](const Vec3& p) {
+    const double pen = -sdf(p);
+    if (pen > worst) {
+      worst = pen;
+      if (deepest != nullptr) *deepest = p;
+    }
+  };
   const Vec3 x = T_part_tool.linear().col(0), y = T_part_tool.linear().col(1);
-  worst = std::max(worst, -sdf(tip));
+  probe(tip);
   const double L = std::max(0.0, tool.length_mm);
   for (double frac : {0.5, 1.0}) {
     const double r = frac * R;
@@ -432,9 +458,11 @@ double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_too
     for (int k = 0; k < m; ++k) {
       const double a = 2 * std::numbers::pi * k / m;
       const Vec3 p = tip + r * (std::cos(a) * x + std::sin(a) * y);
-      worst = std::max(worst, -sdf(p));
-      if (frac == 1.0) worst = std::max(worst, -sdf(p + 0.5 * L * z));
-      if (frac == 1.0) worst = std::max(worst, -sdf(p + L * z));
+      probe(p);
+      if (frac == 1.0) {
+        probe(p + 0.5 * L * z);
+        probe(p + L * z);
+      }
     }
   }
   return worst;

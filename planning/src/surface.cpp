@@ -5,6 +5,7 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <numbers>
 #include <stdexcept>
 #include <algorithm>
 
@@ -15,7 +16,7 @@ namespace {
 /// the samples of cell c are order[first[c] .. first[c + 1])).
 struct SampleIndex {
   std::vector<Vec3> points, normals;
-  double cell = 4.0, search = 20.0;
+  double cell = 4.0, search = 20.0, spacing = 0.5;
   Vec3 origin = Vec3::Zero();          ///< lower corner of cell (0, 0, 0)
   std::int64_t nx = 0, ny = 0, nz = 0;
   std::vector<std::uint32_t> first, order;
@@ -45,14 +46,15 @@ struct SampleIndex {
     for (std::size_t s = 0; s < points.size(); ++s) order[fill[cell_of[s]]++] = static_cast<std::uint32_t>(s);
   }
 
-  [[nodiscard]] double query(const Vec3& p) const {
-    if (points.empty()) return search;
+  /// Nearest sample to p within `search` (other than `exclude`), or -1; squared distance in d2.
+  [[nodiscard]] std::int64_t nearest(const Vec3& p, double& d2, std::int64_t exclude = -1) const {
+    d2 = search * search;
+    if (points.empty()) return -1;
     const auto ci = idx(p.x(), origin.x()), cj = idx(p.y(), origin.y()), ck = idx(p.z(), origin.z());
     const auto reach = static_cast<std::int64_t>(std::ceil(search / cell));
     // farther than `search` from every cell of the grid: no sample can be within reach
     auto gap = [&](std::int64_t c, std::int64_t n) { return c < 0 ? -c : (c >= n ? c - n + 1 : 0); };
-    if (std::max({gap(ci, nx), gap(cj, ny), gap(ck, nz)}) > reach) return search;
-    double best = search * search;
+    if (std::max({gap(ci, nx), gap(cj, ny), gap(ck, nz)}) > reach) return -1;
     std::int64_t found = -1;
     for (std::int64_t r = 0; r <= reach; ++r) {
       // shell r around the query cell (clipped to the grid); stop once a sample is found
@@ -66,16 +68,89 @@ struct SampleIndex {
             const auto c = flat(i, j, k);
             for (auto q = first[c]; q < first[c + 1]; ++q) {
               const auto s = order[q];
-              const double d2 = (points[s] - p).squaredNorm();
-              if (d2 < best) best = d2, found = s;
+              if (static_cast<std::int64_t>(s) == exclude) continue;
+              const double dd = (points[s] - p).squaredNorm();
+              if (dd < d2) d2 = dd, found = s;
             }
           }
         }
-      if (found >= 0 && std::sqrt(best) <= static_cast<double>(r) * cell) break;
+      if (found >= 0 && std::sqrt(d2) <= static_cast<double>(r) * cell) break;
     }
+    return found;
+  }
+
+  /// Calls fn(sample) for every sample within `radius` of p.
+  template <class Fn>
+  void within(const Vec3& p, double radius, Fn&& fn) const {
+    const auto r = static_cast<std::int64_t>(std::ceil(radius / cell));
+    const auto ci = idx(p.x(), origin.x()), cj = idx(p.y(), origin.y()), ck = idx(p.z(), origin.z());
+    for (std::int64_t k = std::max<std::int64_t>(0, ck - r); k <= std::min(nz - 1, ck + r); ++k)
+      for (std::int64_t j = std::max<std::int64_t>(0, cj - r); j <= std::min(ny - 1, cj + r); ++j)
+        for (std::int64_t i = std::max<std::int64_t>(0, ci - r); i <= std::min(nx - 1, ci + r); ++i) {
+          const auto c = flat(i, j, k);
+          for (auto q = first[c]; q < first[c + 1]; ++q)
+            if ((points[order[q]] - p).squaredNorm() <= radius * radius) fn(order[q]);
+        }
+  }
+
+  /// Median distance between neighbouring samples, from up to 2000 of them.
+  void estimate_spacing() {
+    std::vector<double> d;
+    const std::size_t stride = std::max<std::size_t>(1, points.size() / 2000);
+    for (std::size_t s = 0; s < points.size(); s += stride) {
+      double d2 = 0;
+      if (nearest(points[s], d2, static_cast<std::int64_t>(s)) >= 0) d.push_back(std::sqrt(d2));
+    }
+    if (d.empty()) return;
+    std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+    spacing = std::max(1e-3, d[d.size() / 2]);
+  }
+
+  /// For each sample, the sample within two spacings whose normal turns most (more than 45°)
+  /// from its own: the other face of an edge through it, or -1 on a smooth patch.
+  std::vector<std::int32_t> partner;
+
+  void find_partners() {
+    partner.assign(points.size(), -1);
+    const double radius = 2.0 * spacing;
+    for (std::size_t s = 0; s < points.size(); ++s) {
+      double lowest = std::cos(std::numbers::pi / 4);
+      within(points[s], radius, [&](std::uint32_t q) {
+        const double c = normals[s].dot(normals[q]);
+        if (c < lowest) lowest = c, partner[s] = static_cast<std::int32_t>(q);
+      });
+    }
+  }
+
+  [[nodiscard]] double query(const Vec3& p) const {
+    double d2 = 0;
+    const auto found = nearest(p, d2);
     if (found < 0) return search;
     const auto s = static_cast<std::size_t>(found);
-    return (p - points[s]).dot(normals[s]);
+    const Vec3 d = p - points[s];
+    const double along = d.dot(normals[s]);
+    // Where p projects onto the sampled patch around s (lateral offset within one sample
+    // spacing) the point-to-plane distance is accurate to well below the spacing. Beside an edge
+    // p projects off the surface and the tangent plane says nothing (above a vertical wall's top
+    // edge it says 0): the lateral offset beyond the patch counts too, and the sign is voted by
+    // the samples around s, which include both faces of the edge.
+    const double lateral = std::sqrt(std::max(0.0, d2 - along * along));
+    const double beyond = lateral - spacing;
+    if (beyond <= 0.0) {
+      // At an edge the nearest sample may belong to the other face (a wall's top sample for a
+      // point just above the top): both tangent planes count. Locally the solid is the
+      // intersection of the two half-spaces at a convex edge (the larger distance holds) and
+      // their union at a concave one (the smaller).
+      const std::int32_t o = partner[s];
+      if (o < 0) return along;
+      const auto so = static_cast<std::size_t>(o);
+      const double along_o = (p - points[so]).dot(normals[so]);
+      const bool convex = (points[so] - points[s]).dot(normals[s]) < 0.0;
+      return convex ? std::max(along, along_o) : std::min(along, along_o);
+    }
+    double vote = 0.0;
+    within(points[s], 3.0 * spacing, [&](std::uint32_t q) { vote += (p - points[q]).normalized().dot(normals[q]); });
+    return (vote >= 0.0 ? 1.0 : -1.0) * std::sqrt(along * along + beyond * beyond);
   }
 };
 
@@ -92,6 +167,8 @@ SignedDistance sdf_from_samples(std::vector<Vec3> points, std::vector<Vec3> norm
   index->points = std::move(points);
   index->normals = std::move(normals);
   index->build();
+  index->estimate_spacing();
+  index->find_partners();
   return [index](const Vec3& p) { return index->query(p); };
 }
 

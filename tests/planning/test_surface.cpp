@@ -29,6 +29,42 @@ TEST(SampledSdf, MatchesTheAnalyticDistanceNearTheSurface) {
   EXPECT_THROW(sdf_from_samples({Vec3::Zero()}, {}), std::invalid_argument);
 }
 
+/// A box's edge as a height-field sampler draws it: top samples stop short of the edge, wall
+/// samples start half a spacing below the top, both with exact normals.
+void sample_step(std::vector<Vec3>& pts, std::vector<Vec3>& nrm, bool wall_top_sample) {
+  for (double x = -20; x <= -0.25; x += 0.5)
+    for (double y = -10; y <= 10; y += 0.5) pts.emplace_back(x, y, 10.0), nrm.push_back(Vec3::UnitZ());
+  for (double z = 0.25; z < 10.0; z += 0.5)
+    for (double y = -10; y <= 10; y += 0.5) pts.emplace_back(0.0, y, z), nrm.push_back(Vec3::UnitX());
+  if (wall_top_sample)
+    for (double y = -10; y <= 10; y += 0.5) pts.emplace_back(0.0, y, 10.0), nrm.push_back(Vec3::UnitX());
+  for (double x = 0.25; x <= 20; x += 0.5)  // the floor beside the step
+    for (double y = -10; y <= 10; y += 0.5) pts.emplace_back(x, y, 0.0), nrm.push_back(Vec3::UnitZ());
+}
+
+TEST(SampledSdf, EdgesAreNeitherFalseGougesNorFalseContacts) {
+  for (const bool wall_top_sample : {false, true}) {
+    std::vector<Vec3> pts, nrm;
+    sample_step(pts, nrm, wall_top_sample);
+    const auto sdf = sdf_from_samples(pts, nrm);
+    // Just above the top near the convex edge (the wall's top sample is nearest when it
+    // exists; its tangent plane put this point 0.2 mm inside).
+    EXPECT_NEAR(sdf(Vec3(-0.2, 0.1, 10.05)), 0.05, 0.03) << wall_top_sample;
+    // High above the wall's top edge: the wall's tangent plane said 0 here. Off the sampled
+    // patch the distance may come out short by up to one spacing (0.5 mm), never long.
+    for (const Vec3& p : {Vec3(0.0, 0.0, 23.3), Vec3(0.5, 0.0, 13.0)}) {
+      const double truth = std::hypot(p.x(), p.z() - 10.0);
+      EXPECT_LE(sdf(p), truth + 0.05) << p.transpose() << " " << wall_top_sample;
+      EXPECT_GE(sdf(p), truth - 0.6) << p.transpose() << " " << wall_top_sample;
+    }
+    // Inside below the edge: negative, the nearer face counts.
+    EXPECT_NEAR(sdf(Vec3(-0.2, 0.0, 9.9)), -0.1, 0.03) << wall_top_sample;
+    // Beside the wall and above the floor (concave corner): the nearer face.
+    EXPECT_NEAR(sdf(Vec3(0.3, 0.0, 0.2)), 0.2, 0.05) << wall_top_sample;
+    EXPECT_NEAR(sdf(Vec3(5.0, 0.0, 3.0)), 3.0, 0.05) << wall_top_sample;
+  }
+}
+
 TEST(SampledSdf, RiserPlanOnSamplesLeavesTheAllowance) {
   auto scene = testing::make_scene();
   std::vector<Vec3> pts, nrm;

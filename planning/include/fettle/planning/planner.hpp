@@ -115,7 +115,9 @@ Result<Trajectory> plan_part(const std::string& part_id, const std::vector<Regio
 /// toward the spindle): the flange sits tcp_mm[2] along the tool z axis from the tip.
 Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
 
-/// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool.
-double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf);
+/// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool; `deepest`, when
+/// given, receives the point of the tool (part frame) that goes deepest.
+double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
+                           Vec3* deepest = nullptr);
 
 }  // namespace fettle::planning
