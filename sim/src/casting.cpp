@@ -352,26 +352,46 @@ std::vector<SurfacePoint> Casting::sample_golden_surface(double spacing_mm) cons
         out.push_back({Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), h), n.normalized()});
       }
     }
-  // walls: where the height drops by more than a cell between neighbours (x and y)
+  // walls: where the height drops by more than a cell between neighbours (x and y). The height
+  // field draws a curved or slanted wall as a staircase; the wall's normal is not the step's
+  // (±x or ±y) but the direction away from the high side over a disc of about 1 mm around
+  // the crossing (the centroid of a half-disc lies along the true normal).
+  const int reach = std::max(2, static_cast<int>(std::lround(1.0 / f.pitch)));
+  auto wall_normal = [&](double x, double y, float lo, float hi) {
+    Eigen::Vector2d sum = Eigen::Vector2d::Zero();
+    const int ic = static_cast<int>(std::floor((x - f.x0) / f.pitch)), jc = static_cast<int>(std::floor((y - f.y0) / f.pitch));
+    for (int dj = -reach; dj <= reach; ++dj)
+      for (int di = -reach; di <= reach; ++di) {
+        const int i = ic + di, j = jc + dj;
+        if (i < 0 || j < 0 || i >= f.nx || j >= f.ny) continue;
+        const Eigen::Vector2d d(f.cx(i) - x, f.cy(j) - y);
+        if (d.norm() > reach * f.pitch) continue;
+        const double w = std::clamp((static_cast<double>(f.at(i, j)) - lo) / std::max(1e-6, static_cast<double>(hi - lo)), 0.0, 1.0);
+        sum -= w * d;
+      }
+    return sum;
+  };
+  auto add_wall = [&](double x, double y, float lo, float hi, const Eigen::Vector2d& step_normal) {
+    Eigen::Vector2d n2 = wall_normal(x, y, lo, hi);
+    if (n2.norm() < 1e-9 || n2.dot(step_normal) <= 0.0) n2 = step_normal;
+    n2.normalize();
+    const Eigen::Vector3f n(static_cast<float>(n2.x()), static_cast<float>(n2.y()), 0.0f);
+    for (float z = lo + static_cast<float>(spacing_mm) * 0.5f; z < hi; z += static_cast<float>(spacing_mm))
+      out.push_back({Eigen::Vector3f(static_cast<float>(x), static_cast<float>(y), z), n});
+  };
   for (int j = 0; j < f.ny; j += step)
     for (int i = 0; i + 1 < f.nx; ++i) {
       const float a = f.at(i, j), b = f.at(i + 1, j);
       const float lo = std::max(std::min(a, b), 0.0f), hi = std::max(a, b);
       if (hi - lo < 4 * f.pitch) continue;
-      const float x = static_cast<float>(f.x0 + (i + 1) * f.pitch);
-      const Eigen::Vector3f n(a > b ? 1.0f : -1.0f, 0.0f, 0.0f);
-      for (float z = lo + static_cast<float>(spacing_mm) * 0.5f; z < hi; z += static_cast<float>(spacing_mm))
-        out.push_back({Eigen::Vector3f(x, static_cast<float>(f.cy(j)), z), n});
+      add_wall(f.x0 + (i + 1) * f.pitch, f.cy(j), lo, hi, Eigen::Vector2d(a > b ? 1.0 : -1.0, 0.0));
     }
   for (int i = 0; i < f.nx; i += step)
     for (int j = 0; j + 1 < f.ny; ++j) {
       const float a = f.at(i, j), b = f.at(i, j + 1);
       const float lo = std::max(std::min(a, b), 0.0f), hi = std::max(a, b);
       if (hi - lo < 4 * f.pitch) continue;
-      const float y = static_cast<float>(f.y0 + (j + 1) * f.pitch);
-      const Eigen::Vector3f n(0.0f, a > b ? 1.0f : -1.0f, 0.0f);
-      for (float z = lo + static_cast<float>(spacing_mm) * 0.5f; z < hi; z += static_cast<float>(spacing_mm))
-        out.push_back({Eigen::Vector3f(static_cast<float>(f.cx(i)), y, z), n});
+      add_wall(f.cx(i), f.y0 + (j + 1) * f.pitch, lo, hi, Eigen::Vector2d(0.0, a > b ? 1.0 : -1.0));
     }
   return out;
 }
