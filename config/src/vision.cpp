@@ -17,6 +17,7 @@ void read_vision(TableReader& root, VisionSettings& v) {
     }
     t->integer("outlier_neighbours", v.outlier_neighbours, {0, 100});
     t->number("outlier_std_ratio", v.outlier_std_ratio, {0.1, 100.0});
+    t->number("jump_edge_mm", v.jump_edge_mm, {0.0, 1000.0});
     t->boolean("remove_plane", v.remove_plane);
     t->number("plane_distance_mm", v.plane_distance_mm, {0.001, 100.0});
     t->number("plane_probability", v.plane_probability, {0.5, 0.999999});

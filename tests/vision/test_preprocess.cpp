@@ -101,6 +101,33 @@ TEST(StatisticalOutliers, OrganizedVariantUsesImageNeighbours) {
   EXPECT_GT(k.count_valid(), o.count_valid() - 12);  // the spike and a few of its neighbours at most
 }
 
+TEST(JumpEdges, FlyingPixelsBetweenTwoSurfacesAreDroppedAndTheSurfacesKept) {
+  // A step seen from above: left half at 500 mm, right half at 510 mm, with a flying pixel
+  // halfway down the step in every row.
+  fettle::OrganizedCloud o;
+  o.width = 40;
+  o.height = 10;
+  for (std::uint32_t v = 0; v < o.height; ++v)
+    for (std::uint32_t u = 0; u < o.width; ++u)
+      o.points.emplace_back(0.5f * static_cast<float>(u), 0.5f * static_cast<float>(v), u < 20 ? 500.0f : 510.0f);
+  for (std::uint32_t v = 0; v < o.height; ++v) o.points[v * 40 + 20].z() = 505.0f;
+  const auto k = remove_jump_edges(o, 2.0);
+  EXPECT_EQ(k.width, 40U);
+  for (std::uint32_t v = 0; v < o.height; ++v) {
+    EXPECT_FALSE(k.is_valid(v * 40 + 20)) << "flying pixel in row " << v;
+    EXPECT_FALSE(k.is_valid(v * 40 + 19)) << "the step's edge pixel goes too";
+    EXPECT_TRUE(k.is_valid(v * 40 + 18));
+    EXPECT_TRUE(k.is_valid(v * 40 + 22));
+  }
+  EXPECT_EQ(k.count_valid(), o.count_valid() - 3 * o.height);
+  // a gentle slope (0.25 mm per pixel) is a surface, not a jump; 0 switches the filter off
+  fettle::OrganizedCloud slope = o;
+  for (std::uint32_t v = 0; v < o.height; ++v)
+    for (std::uint32_t u = 0; u < o.width; ++u) slope.points[v * 40 + u].z() = 500.0f + 0.25f * static_cast<float>(u);
+  EXPECT_EQ(remove_jump_edges(slope, 2.0).count_valid(), slope.count_valid());
+  EXPECT_EQ(remove_jump_edges(o, 0.0).count_valid(), o.count_valid());
+}
+
 TEST(Normals, PcaNormalsOfAPlaneFaceTheViewpoint) {
   Cloud c;
   for (int x = 0; x < 30; ++x)

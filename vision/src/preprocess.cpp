@@ -129,6 +129,26 @@ Cloud remove_statistical_outliers(const Cloud& cloud, int k, double std_ratio) {
   return out;
 }
 
+OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm) {
+  OrganizedCloud out = cloud;
+  const std::size_t w = cloud.width, h = cloud.height;
+  if (max_jump_mm <= 0.0 || w * h != cloud.size()) return out;
+  std::vector<float> range(cloud.size(), std::numeric_limits<float>::quiet_NaN());
+  for (std::size_t k = 0; k < cloud.size(); ++k)
+    if (cloud.points[k].allFinite()) range[k] = cloud.points[k].norm();
+  const auto jump = static_cast<float>(max_jump_mm);
+  for (std::size_t v = 0; v < h; ++v)
+    for (std::size_t u = 0; u < w; ++u) {
+      const std::size_t k = v * w + u;
+      const float r = range[k];
+      if (std::isnan(r)) continue;
+      auto far = [&](std::size_t n) { return !std::isnan(range[n]) && std::abs(range[n] - r) > jump; };
+      if ((u > 0 && far(k - 1)) || (u + 1 < w && far(k + 1)) || (v > 0 && far(k - w)) || (v + 1 < h && far(k + w)))
+        out.points[k] = OrganizedCloud::invalid();
+    }
+  return out;
+}
+
 OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int window_radius, double std_ratio) {
   if (window_radius <= 0 || cloud.width == 0 || cloud.height == 0) return cloud;
   const int w = static_cast<int>(cloud.width);

@@ -465,8 +465,20 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
         tukey = std::max(0.1 * d_min, 4.685 * 1.4826 * static_cast<double>(all[all.size() / 2]));
       }
     }
-    const Vec6 x = H.ldlt().solve(-g);
+    // A region that is mostly one flat face does not constrain sliding along it (nor turning
+    // about its normal): H is near singular there and the plain solve returned steps of 1e12 mm.
+    // A small floor on the diagonal (relative to the best-constrained rotation and translation)
+    // leaves such directions where the whole-part pose put them, and no step may exceed the
+    // correspondence distance.
+    const double floor_r = 1e-4 * H.diagonal().head<3>().maxCoeff();
+    const double floor_t = 1e-4 * H.diagonal().tail<3>().maxCoeff();
+    for (int k = 0; k < 3; ++k) {
+      H(k, k) += floor_r;
+      H(k + 3, k + 3) += floor_t;
+    }
+    Vec6 x = H.ldlt().solve(-g);
     if (!x.allFinite()) break;
+    if (const double tn = x.tail<3>().norm(); tn > d) x *= d / tn;
     Transform step = Transform::Identity();
     const double angle = x.head<3>().norm();
     if (angle > 0) step.linear() = Eigen::AngleAxisd(angle, x.head<3>() / angle).toRotationMatrix();

@@ -13,6 +13,9 @@ struct VisionSettings {
   std::array<double, 3> crop_max_mm{250.0, 250.0, 300.0};    ///< pass-through box, upper corner
   int outlier_neighbours = 8;          ///< statistical outlier removal: neighbours per point
   double outlier_std_ratio = 2.5;      ///< ... and the allowed spread (standard deviations)
+  double jump_edge_mm = 0.0;           ///< flying pixels: drop a pixel whose range jumps more than this
+                                       ///< to an image neighbour (0 = off; a flash fin is itself a
+                                       ///< 1-3 mm jump, so keep it above the flash height)
   // environment removal (fixture plane, RANSAC with the adaptive count of Eq. 10)
   bool remove_plane = true;
   double plane_distance_mm = 0.5;      ///< inlier band of the fixture plane

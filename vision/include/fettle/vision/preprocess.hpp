@@ -28,6 +28,12 @@ Cloud remove_statistical_outliers(const Cloud& cloud, int k, double std_ratio);
 /// Organized variant: neighbours are the valid pixels of a (2r+1)^2 window (no search tree).
 OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int window_radius, double std_ratio);
 
+/// Jump-edge (flying pixel) filter of an organized cloud in its camera frame: a pixel whose
+/// range differs from a valid 4-neighbour's by more than `max_jump_mm` is made invalid. Pixels
+/// at a depth discontinuity mix the two surfaces and sit in the air between them; the filter
+/// also drops the one true pixel on each side of every jump. max_jump_mm <= 0 keeps everything.
+OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm);
+
 /// Normals from the k nearest neighbours (PCA), oriented towards `viewpoint`.
 void estimate_normals(Cloud& cloud, int k, const Eigen::Vector3f& viewpoint = Eigen::Vector3f::Zero());
 
