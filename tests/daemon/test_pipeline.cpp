@@ -115,11 +115,7 @@ TEST_F(Pipeline, EmptyFixtureIsAVisionErrorNotACrash) {
   EXPECT_NE(r.error().message.find("step vision"), std::string::npos) << r.error().message;
 }
 
-// DISABLED: fails today - the flange ring's periphery pass is refused near 20 degrees below
-// the x axis ("step plan: region 'flange-ring': contact point 92 at (42.28, -15.34, 50.28):
-// the tool cannot reach it without cutting the template"), on the sampled template; not yet
-// understood (issue 5).
-TEST_F(Pipeline, DISABLED_PlansEveryRegionOfASimulatedCastingAndValidates) {
+TEST_F(Pipeline, PlansEveryRegionOfASimulatedCastingAndValidates) {
   const auto casting = sim::Casting::make(loaded_->recipe, 1);
   const sim::Scanner scanner(small_scanner());
   std::vector<std::string> steps;
@@ -160,9 +156,13 @@ TEST_F(Pipeline, OnlyTheRequestedRegionsArePlannedForARegrind) {
   EXPECT_NE(bad.error().message.find("no-such-region"), std::string::npos);
 }
 
-// DISABLED (2026-11-30): passes in a developer tree but fails on a fresh clone (after the exact
-// grind every region still comes out REGRIND, lines 181-186); the difference is probably the
-// golden template / vision cache left next to the recipe in a used tree. Find it before enabling.
+// DISABLED (2026-11-30, second session): after the exact grind the riser region still reads
+// REGRIND: 0.40 % of its ROI points are > 0.5 mm off (allowed 0.1 %). They are scan points at
+// the top's height 0.5-0.85 mm beyond the riser pad's +x edge (part frame x = -54.2 .. -54.5,
+// the edge is at -55), and the casting's own golden distance agrees, so either the region pose
+// is off by that much in x (the ground pad is one flat face: ICP keeps the whole-part pose
+// there) or the simulated edge sits there. Not flying pixels: a jump-edge filter did not
+// change it. Find which before enabling (issue 5).
 TEST_F(Pipeline, DISABLED_VerifySaysRegrindBeforeGrindingAndOkAfterAnExactGrind) {
   auto casting = sim::Casting::make(loaded_->recipe, 4);
   const sim::Scanner scanner(small_scanner());
@@ -190,4 +190,5 @@ TEST_F(Pipeline, DISABLED_VerifySaysRegrindBeforeGrindingAndOkAfterAnExactGrind)
 }
 
 }  // namespace
+
 }  // namespace fettle::daemon

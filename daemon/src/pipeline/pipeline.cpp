@@ -35,13 +35,13 @@ Error step_error(const std::string& step, const Error& inner) {
 }
 
 /// The views in the base (= fixture) frame, fused into one cloud when there are several.
-Result<vision::Cloud> fuse(const std::vector<View>& views) {
+Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) {
   if (views.empty()) return Error{"pipeline.no_views", "step fuse: no views were captured"};
   std::vector<vision::View> camera_views;
   camera_views.reserve(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
     vision::View v;
-    v.cloud = vision::to_cloud(views[i].cloud);
+    v.cloud = vision::to_cloud(vision::remove_jump_edges(views[i].cloud, jump_edge_mm));
     if (v.cloud.empty())
       return Error{"pipeline.empty_view", "step fuse: view " + std::to_string(i) + " (slide at " +
                                               std::to_string(views[i].slide_position_mm) +
@@ -67,13 +67,15 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
       return Error{"pipeline.empty_view", "step fuse: view 0 (slide at " + std::to_string(views.front().slide_position_mm) +
                                               " mm) has no valid point: check the camera and its exposure"};
     report(progress, 1, total, "vision");
-    auto ins = vision::inspect(loaded.recipe, loaded.templ, views.front().cloud, views.front().T_base_camera);
+    auto ins = vision::inspect(loaded.recipe, loaded.templ,
+                               vision::remove_jump_edges(views.front().cloud, loaded.recipe.vision.jump_edge_mm),
+                               views.front().T_base_camera);
     timings.push_back({"vision", ms_since(t0)});
     if (!ins) return step_error("vision", ins.error());
     return ins;
   }
   report(progress, 0, total, "fuse");
-  auto scan = fuse(views);
+  auto scan = fuse(views, loaded.recipe.vision.jump_edge_mm);
   if (!scan) return scan.error();
   timings.push_back({"fuse", ms_since(t0)});
   t0 = Clock::now();
@@ -142,7 +144,11 @@ LoadedRecipe load_recipe(const config::PartRecipe& recipe, const LoadOptions& op
   out.templ = recipe.vision.cache && !recipe.source.empty()
                   ? vision::PartTemplate::load_or_build(recipe, golden, out.golden_identity, &out.template_from_cache)
                   : vision::PartTemplate::build(recipe, golden);
-  const auto& fine = out.templ.whole().fine();
+  // The planner's signed distance: from the golden samples themselves where they carry normals
+  // (the simulator's golden part: exact outward normals), else from the vision template's fine
+  // cloud. The template is voxel-averaged, which blends the normals of the two faces at every
+  // edge into a diagonal one and puts a false 0.1-0.2 mm gouge just above the edge.
+  const auto& fine = golden.has_normals() ? golden : out.templ.whole().fine();
   if (!fine.has_normals()) throw UserError(where + ": the template has no normals (a bug in the vision stage)");
   std::vector<Vec3> pts, nrm;
   pts.reserve(fine.size());
@@ -351,7 +357,12 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       const Eigen::Vector3f q = T * p;
       if (in_roi(region, q)) pts.push_back(q);
     }
-    auto residual = vision::signed_distances(loaded.templ.whole(), pts);
+    // Residuals on the planner's signed distance (golden samples with their normals, edges
+    // handled): the voxel-averaged vision template blends the two normals at every edge and
+    // read exactly ground edges as 0.5 mm off.
+    std::vector<float> residual;
+    residual.reserve(pts.size());
+    for (const auto& q : pts) residual.push_back(static_cast<float>(loaded.template_sdf(q.cast<double>())));
     out.regions.push_back(judge_region(region, recipe.verification, std::move(pts), std::move(residual)));
   }
   for (const auto& r : out.regions) {
