@@ -129,28 +129,25 @@ struct SampleIndex {
     const auto s = static_cast<std::size_t>(found);
     const Vec3 d = p - points[s];
     const double along = d.dot(normals[s]);
-    // Where p projects onto the sampled patch around s (lateral offset within one sample
-    // spacing) the point-to-plane distance is accurate to well below the spacing. Beside an edge
-    // p projects off the surface and the tangent plane says nothing (above a vertical wall's top
-    // edge it says 0): the lateral offset beyond the patch counts too, and the sign is voted by
-    // the samples around s, which include both faces of the edge.
-    const double lateral = std::sqrt(std::max(0.0, d2 - along * along));
-    const double beyond = lateral - spacing;
-    if (beyond <= 0.0) {
-      // At an edge the nearest sample may belong to the other face (a wall's top sample for a
-      // point just above the top): both tangent planes count. Locally the solid is the
-      // intersection of the two half-spaces at a convex edge (the larger distance holds) and
-      // their union at a concave one (the smaller).
-      const std::int32_t o = partner[s];
-      if (o < 0) return along;
+    // At an edge the nearest sample may belong to the other face (a wall's top sample for a
+    // point just above the top): both tangent planes count. Locally the solid is the
+    // intersection of the two half-spaces at a convex edge (the larger distance holds) and
+    // their union at a concave one (the smaller).
+    double planes = along;
+    if (const std::int32_t o = partner[s]; o >= 0) {
       const auto so = static_cast<std::size_t>(o);
       const double along_o = (p - points[so]).dot(normals[so]);
       const bool convex = (points[so] - points[s]).dot(normals[s]) < 0.0;
-      return convex ? std::max(along, along_o) : std::min(along, along_o);
+      planes = convex ? std::max(along, along_o) : std::min(along, along_o);
     }
-    double vote = 0.0;
-    within(points[s], 3.0 * spacing, [&](std::uint32_t q) { vote += (p - points[q]).normalized().dot(normals[q]); });
-    return (vote >= 0.0 ? 1.0 : -1.0) * std::sqrt(along * along + beyond * beyond);
+    // Where p projects onto the sampled patch around s (lateral offset within one sample
+    // spacing) that is accurate to well below the spacing. Off the patch (beside an edge) the
+    // tangent planes say nothing about the size (above a vertical wall's top edge the wall's
+    // says 0): the distance to s, short by at most a spacing, with the planes' sign.
+    const double lateral = std::sqrt(std::max(0.0, d2 - along * along));
+    const double beyond = lateral - spacing;
+    if (beyond <= 0.0) return planes;
+    return (planes >= 0.0 ? 1.0 : -1.0) * std::sqrt(along * along + beyond * beyond);
   }
 };
 

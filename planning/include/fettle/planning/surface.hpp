@@ -10,9 +10,10 @@
 namespace fettle::planning {
 
 /// Point-to-plane distance (p − s)·n_s to the nearest sample s (> 0 outside) where p projects
-/// onto the sampled surface near s (within two sample spacings); beside an edge, where the
-/// tangent plane says nothing, the distance to s with the sign voted by the samples around s
-/// (both faces of the edge). Samples are
+/// onto the sampled surface near s (within one sample spacing). At an edge (a sample within two
+/// spacings of s whose normal turns more than 45°) both tangent planes count: the larger
+/// distance at a convex edge, the smaller at a concave one. Off the sampled patch the distance
+/// to s (short by at most a spacing) with that sign. Samples are
 /// hashed into cells of `cell_mm`; points with no sample within `search_mm` get +search_mm
 /// (treated as far outside), so the samples must cover every surface a tool comes near and
 /// `search_mm` must exceed the largest tool radius plus the allowance (a ball's gouge check
