@@ -16,7 +16,7 @@ struct ToolSolid {
 };
 
 /// Interval [lo, hi] of z where the vertical line through (x, y) is inside the tool
-/// (tip/centre c, axis a toward the spindle). False if the line misses.
+/// (cylinder/cone tip or ball centre c, axis a toward the spindle). False if the line misses.
 bool line_interval(const ToolSolid& tool, const Vec3& c, const Vec3& a, double x, double y, double& lo, double& hi) {
   const Vec3 q0(x - c.x(), y - c.y(), -c.z());  // q(z) = q0 + z ez
   if (tool.shape == config::ToolShape::ball) {
@@ -185,8 +185,9 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
     const auto& p = poses[pi];
     const Vec3 noise(rng.gaussian(), rng.gaussian(), rng.gaussian());
     const Vec3 x_base = p.x + opt.path_noise_mm * noise + opt.path_bias_mm;
-    const Vec3 c = T_part_base * x_base;
     const Vec3 a = (T_part_base.linear() * (p.q * Vec3::UnitZ())).normalized();
+    // The TCP is the tool tip (docs/planning.md): a ball's centre is R up the tool axis from it.
+    const Vec3 c = T_part_base * x_base + (tool.shape == config::ToolShape::ball ? Vec3(tool.radius * a) : Vec3(Vec3::Zero()));
     const Eigen::Matrix3d R_part_tool = T_part_base.linear() * p.q.toRotationMatrix();
 
     // Gouge: deepest penetration of the tool surface into the golden body.

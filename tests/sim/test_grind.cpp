@@ -72,7 +72,7 @@ TEST(SimGrind, BallSweepAlongTheStraightFlashRemovesItAndRecordsAGougeWhenTooLow
     fettle::Trajectory t;
     for (double s : {-8.0, L + 8.0}) {
       fettle::TrajectoryPoint q;
-      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + 6.0 + clearance);
+      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + clearance);  // TCP at the ball's tip
       q.speed_mm_s = 20;
       q.spindle_rpm = 9000;
       t.points.push_back(q);

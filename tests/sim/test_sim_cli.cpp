@@ -82,7 +82,7 @@ class SimCli : public ::testing::Test {
     t.segment_regions = {f.region};
     for (double s : {-8.0, f.length_mm.max + 8.0}) {
       fettle::TrajectoryPoint q;
-      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + 6.0 + clearance_mm);
+      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + clearance_mm);  // TCP at the ball's tip
       q.speed_mm_s = 20;
       q.spindle_rpm = 9000;
       t.points.push_back(q);
