@@ -172,8 +172,11 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     ro.envelope.max_speed_mm_s = s.max_speed_mm_s;
     ro.envelope.max_spindle_rpm = s.max_spindle_rpm;
     robot = std::make_unique<RobotSim>(io, ro);
-    robot->on_executed([weak](const Trajectory& t) {
-      if (auto self = weak.lock()) self->executed(t);
+    // The casting is ground before the robot reports DONE (the grinding simulation takes real
+    // time; the verification scan must see the ground part).
+    robot->on_settle([weak](const Trajectory& t, std::function<void()> done) {
+      if (auto self = weak.lock()) self->executed(t, std::move(done));
+      else done();
     });
     robot->start();
 
@@ -301,10 +304,13 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
 
   void unload() { set_casting(std::nullopt, "fixture emptied"); }
 
-  void executed(const Trajectory& t) {
-    if (t.points.empty()) return;
+  void executed(const Trajectory& t, std::function<void()> done) {
+    if (t.points.empty()) return done();
     auto self = shared_from_this();
-    asio::post(grinder, [self, t] { self->grind_executed(t); });
+    asio::post(grinder, [self, t, done = std::move(done)] {
+      self->grind_executed(t);
+      done();
+    });
   }
 
   const config::Tool& tool_for_segment(const std::vector<TrajectoryPoint>& pts, const Transform& T_part_base) const {

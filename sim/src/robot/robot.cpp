@@ -39,6 +39,7 @@ struct RobotSim::Impl : std::enable_shared_from_this<Impl> {
   RobotSimStats stats_;
   ExecutedHandler on_executed_;
   ExecutedHandler on_arrived_;
+  SettleHandler on_settle_;
   std::shared_ptr<Session> active_;
   std::vector<std::weak_ptr<Session>> sessions_;
   int port_ = 0;
@@ -455,10 +456,22 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
         t.points = executed_;
         server_->on_arrived_(t);
       }
-      send("DONE " + std::to_string(id_) + " " + std::to_string(stored_.size()), false);
-      ++server_->stats_.trajectories_executed;
-      st_ = St::uploaded;
-      hand_over();
+      if (server_->on_settle_) {
+        Trajectory t;
+        t.points = executed_;
+        const unsigned token = exec_token_;
+        std::weak_ptr<Session> weak = shared_from_this();
+        auto executor = exec_timer_.get_executor();
+        server_->on_settle_(t, [weak, token, executor] {
+          asio::post(executor, [weak, token] {
+            auto self = weak.lock();
+            if (!self || self->closed_ || token != self->exec_token_ || self->st_ != St::running) return;
+            self->finish_run();
+          });
+        });
+        return;
+      }
+      finish_run();
       return;
     }
     if (faults().fault_at_point >= 0 && static_cast<std::size_t>(faults().fault_at_point) == exec_idx_) {
@@ -489,6 +502,13 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
       ++self->exec_idx_;
       self->step();
     });
+  }
+
+  void finish_run() {
+    send("DONE " + std::to_string(id_) + " " + std::to_string(stored_.size()), false);
+    ++server_->stats_.trajectories_executed;
+    st_ = St::uploaded;
+    hand_over();
   }
 
   void hand_over() {
@@ -558,6 +578,7 @@ RobotSim::RobotSim(asio::io_context& io, RobotSimOptions options)
 RobotSim::~RobotSim() {
   impl_->on_executed_ = nullptr;
   impl_->on_arrived_ = nullptr;
+  impl_->on_settle_ = nullptr;
   impl_->close();
 }
 void RobotSim::start() { impl_->start(); }
@@ -568,6 +589,7 @@ void RobotSim::set_faults(const RobotFaults& faults) { impl_->opts_.faults = fau
 const RobotFaults& RobotSim::faults() const { return impl_->opts_.faults; }
 void RobotSim::on_executed(ExecutedHandler h) { impl_->on_executed_ = std::move(h); }
 void RobotSim::on_arrived(ExecutedHandler h) { impl_->on_arrived_ = std::move(h); }
+void RobotSim::on_settle(SettleHandler h) { impl_->on_settle_ = std::move(h); }
 const RobotSimStats& RobotSim::stats() const { return impl_->stats_; }
 
 }  // namespace fettle::sim

@@ -88,6 +88,12 @@ class RobotSim {
   /// (e.g. a camera that shows what the robot holds) updates here, so it is current by the
   /// time the client hears DONE. Runs on the io_context's thread and delays DONE while it runs.
   void on_arrived(ExecutedHandler h);
+  /// Like on_arrived, but DONE waits until the handler calls `done` (from any thread) without
+  /// blocking the robot's I/O meanwhile: a simulated process that takes real time (grinding the
+  /// casting's material) finishes before the client hears DONE, as on a real cell. A STOP or a
+  /// dropped connection in between cancels the DONE.
+  using SettleHandler = std::function<void(const Trajectory& executed, std::function<void()> done)>;
+  void on_settle(SettleHandler h);
   [[nodiscard]] const RobotSimStats& stats() const;
 
  private:
