@@ -376,7 +376,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   // Awaiting callbacks with timeouts
 
   template <class T>
-  asio::awaitable<std::optional<T>> await_op(Cycle* c, std::function<void(std::function<void(T)>)> start,
+  // `start` by reference: see process_views on GCC 12 and temporaries in co_await expressions.
+  asio::awaitable<std::optional<T>> await_op(Cycle* c, const std::function<void(std::function<void(T)>)>& start,
                                               milliseconds timeout) {
     auto p = std::make_shared<Pending<T>>(io);
     if (c != nullptr) c->cancel = [p] { p->cancel(); };
@@ -682,14 +683,19 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     co_return co_await slide_to(c, 0);
   }
 
+  // GCC 12 destroys a temporary with a non-trivial destructor in a co_await expression twice:
+  // a lambda capturing shared_ptrs and ProcessOptions by value, passed straight into
+  // await_op, double-freed the region names at the first re-grind (core dump, 2026-11-30) and
+  // can drop the views' refcount early (likely the earlier segfault in vision::to_cloud).
+  // Everything non-trivial handed to await_op is therefore a named local of this frame.
   asio::awaitable<std::optional<ProcessOutput>> process_views(Cycle& c, const std::vector<View>& views,
-                                                              ProcessOptions po, const std::string& name) {
+                                                              const ProcessOptions& process_options, const std::string& name) {
+    const ProcessOptions po = process_options;
     c.begin(name);
     publish_state();
     auto recipe = c.recipe;
     auto views_copy = std::make_shared<const std::vector<View>>(views);
-    auto r = co_await await_op<Result<ProcessOutput>>(
-        &c,
+    const std::function<void(std::function<void(Result<ProcessOutput>)>)> start =
         [this, recipe, views_copy, po](std::function<void(Result<ProcessOutput>)> done) {
           asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, po, done] {
             Result<ProcessOutput> out = Error{"pipeline.internal", "not run"};
@@ -700,8 +706,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
             }
             asio::post(io, [done, out = std::move(out)]() mutable { done(std::move(out)); });
           });
-        },
-        milliseconds(180000));
+        };
+    auto r = co_await await_op<Result<ProcessOutput>>(&c, start, milliseconds(180000));
     if (c.fault) co_return std::nullopt;
     if (!r) {
       fail(c, Fault{FaultCode::step_timeout, "processing took longer than 180 s", c.step});
@@ -720,8 +726,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     publish_state();
     auto recipe = c.recipe;
     auto views_copy = std::make_shared<const std::vector<View>>(views);
-    auto r = co_await await_op<Result<VerificationResult>>(
-        &c,
+    // named, not a temporary in the co_await expression (see process_views)
+    const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
         [this, recipe, views_copy](std::function<void(Result<VerificationResult>)> done) {
           asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, done] {
             Result<VerificationResult> out = Error{"pipeline.internal", "not run"};
@@ -732,8 +738,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
             }
             asio::post(io, [done, out = std::move(out)]() mutable { done(std::move(out)); });
           });
-        },
-        milliseconds(180000));
+        };
+    auto r = co_await await_op<Result<VerificationResult>>(&c, start, milliseconds(180000));
     if (c.fault) co_return std::nullopt;
     if (!r) {
       fail(c, Fault{FaultCode::step_timeout, "verification took longer than 180 s", c.step});
@@ -827,7 +833,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       co_return;
     }
     if (!co_await scan(c, c.views, "capture")) co_return;
-    auto processed = co_await process_views(c, c.views, {}, "process");
+    const ProcessOptions all_regions;
+    auto processed = co_await process_views(c, c.views, all_regions, "process");
     if (!processed) co_return;
     c.processed = std::move(processed);
     write_process_outputs(c, *c.processed, "");
