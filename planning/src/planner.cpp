@@ -116,6 +116,43 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
   return true;
 }
 
+/// The validator also samples the moves between points (every kSweepStepMm, orientation by
+/// slerp). Where the sampled template dips between two clear points, a move can still cut a
+/// little: push both ends of such a move out along their retreat directions until every sample
+/// of it keeps `clearance_mm` too. False when max_mm is not enough.
+bool clear_moves(const config::Tool& tool, std::vector<Transform>& poses, const std::vector<Vec3>& retreats,
+                 const SignedDistance& sdf, double clearance_mm, double max_mm) {
+  std::vector<double> pushed(poses.size(), 0.0);
+  for (int round = 0; round < 25; ++round) {
+    bool moved = false;
+    for (std::size_t i = 1; i < poses.size(); ++i) {
+      const Transform& A = poses[i - 1];
+      const Transform& B = poses[i];
+      const double len = (B.translation() - A.translation()).norm();
+      const int steps = static_cast<int>(std::ceil(len / kSweepStepMm));
+      const Quat qa(A.linear()), qb(B.linear());
+      double worst = -std::numeric_limits<double>::infinity();
+      for (int k = 1; k < steps; ++k) {
+        const double f = static_cast<double>(k) / steps;
+        Transform M = Transform::Identity();
+        M.linear() = qa.slerp(f, qb).normalized().toRotationMatrix();
+        M.translation() = A.translation() + f * (B.translation() - A.translation());
+        worst = std::max(worst, tool_penetration_mm(tool, M, sdf) + clearance_mm);
+      }
+      if (worst <= 1e-6) continue;
+      const double step = worst + 0.01;
+      for (std::size_t j : {i - 1, i}) {
+        if (pushed[j] + step > max_mm) return false;
+        poses[j].translation() += step * retreats[j];
+        pushed[j] += step;
+      }
+      moved = true;
+    }
+    if (!moved) return true;
+  }
+  return false;
+}
+
 TrajectoryPoint make_point(const Transform& T_base_part, const Transform& T_part_tool, double speed, double rpm,
                            int segment, MoveKind kind) {
   TrajectoryPoint p;
@@ -174,7 +211,7 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
   const double R = tool_radius(tool);
   const double theta = deg_to_rad(region.chamfer_deg);
   std::vector<Transform> poses;
-  std::vector<Vec3> normals;
+  std::vector<Vec3> normals, retreats;
   poses.reserve(count + 1);
   for (std::size_t i = 0; i <= count; ++i) {
     // travel along t = n × w, i.e. clockwise about w: walk the parameter backwards
@@ -221,7 +258,12 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
     }
     poses.push_back(T_part_tool);
     normals.push_back(n);
+    retreats.push_back(retreat);
   }
+  if (!clear_moves(tool, poses, retreats, in.template_sdf, region.allowance_mm, settings.max_backoff_mm))
+    return region_error(region.name, "gouge",
+                        "the moves between the contact points cannot keep the allowance from the template (pushed out " +
+                            fmt(settings.max_backoff_mm) + " mm); use a smaller tool, another chamfer_deg or contact");
   const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
   auto lead = [&](const Transform& T, const Vec3& n) {
     Transform L = T;
