@@ -96,6 +96,7 @@ class Fettled : public ::testing::Test {
     const auto shipped = fettle::config::load_cell(kSource / "config/cell.sim.toml");
     fettle::sim::CellSimOptions o;
     o.cell = shipped;
+    o.cell.robot.cell_id = "test-cell";  // the simulated robot checks HELLO's cell id against this
     o.plc_port = o.robot_port = o.spindle_port = 0;
     o.castings = 0;
     o.auto_start = false;
@@ -190,7 +191,9 @@ class Fettled : public ::testing::Test {
     cell_->load(seed);
     const auto before = cell_->plc().results.size();
     cell_->request();
-    return wait_until([&] { return cell_->plc().results.size() > before; }, 120s);
+    // processing ~15 s, the run ~70 s (the simulator grinds the casting before the robot's
+    // DONE), verification, possibly one re-grind: a few minutes on the 2-core machine
+    return wait_until([&] { return cell_->plc().results.size() > before; }, 360s);
   }
 
   /// Requests a cycle and waits for the fault and the state it must end in.
@@ -213,11 +216,11 @@ fs::path Fettled::dir_;
 fettle::sim::CellSim* Fettled::cell_ = nullptr;
 pid_t Fettled::pid_ = 0;
 
-// DISABLED (2026-11-30): the cycle does not complete on the simulated cell yet: processing
-// stops (vision refused the riser; since then planning refuses the flange ring, issue 5), so
-// none of these scenarios can reach its end state. Enable them once `make demo` completes a
-// cycle (issue 9 notes). Run them anyway with --gtest_also_run_disabled_tests.
-TEST_F(Fettled, DISABLED_A_ThreeCyclesWithResultsAndRecords) {
+// A runs (2026-11-30, second session: two full cycles took ~220 s; three ~330 s). B-I stay DISABLED until each
+// has been run against the now-completing cycle and its timeouts fitted to real timings
+// (processing ~15 s, the run ~70 s because the simulator grinds before DONE); run them with
+// --gtest_also_run_disabled_tests.
+TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
   ASSERT_TRUE(reaches(State::stopped, 30s));
   ASSERT_TRUE(to_execute());
   for (std::uint64_t seed = 1; seed <= 3; ++seed) ASSERT_TRUE(good_cycle(seed)) << "cycle " << seed << tail_log();
