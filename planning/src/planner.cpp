@@ -116,29 +116,36 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
   return true;
 }
 
-/// The validator also samples the moves between points (every kSweepStepMm, orientation by
-/// slerp). Where the sampled template dips between two clear points, a move can still cut a
-/// little: push both ends of such a move out along their retreat directions until every sample
-/// of it keeps `clearance_mm` too. False when max_mm is not enough.
+/// The poses strictly between a and b that validation checks on a move: every kSweepStepMm
+/// along the straight line, orientation by slerp. fn(m) returns false to stop early; the
+/// function returns false then.
+template <class Fn>
+bool for_each_move_sample(const Pose& a, const Pose& b, Fn&& fn) {
+  const double len = (b.position_mm - a.position_mm).norm();
+  const int steps = static_cast<int>(std::ceil(len / kSweepStepMm));
+  for (int k = 1; k < steps; ++k) {
+    const double f = static_cast<double>(k) / steps;
+    const Pose m{a.position_mm + f * (b.position_mm - a.position_mm), a.orientation.slerp(f, b.orientation).normalized()};
+    if (!fn(m)) return false;
+  }
+  return true;
+}
+
+/// Validation also samples the moves between points (for_each_move_sample). Where the sampled
+/// template dips between two clear points, a move can still cut a little: push both ends of
+/// such a move out along their retreat directions until every sample of it keeps
+/// `clearance_mm` too. False when max_mm is not enough.
 bool clear_moves(const config::Tool& tool, std::vector<Transform>& poses, const std::vector<Vec3>& retreats,
                  const SignedDistance& sdf, double clearance_mm, double max_mm) {
   std::vector<double> pushed(poses.size(), 0.0);
   for (int round = 0; round < 25; ++round) {
     bool moved = false;
     for (std::size_t i = 1; i < poses.size(); ++i) {
-      const Transform& A = poses[i - 1];
-      const Transform& B = poses[i];
-      const double len = (B.translation() - A.translation()).norm();
-      const int steps = static_cast<int>(std::ceil(len / kSweepStepMm));
-      const Quat qa(A.linear()), qb(B.linear());
       double worst = -std::numeric_limits<double>::infinity();
-      for (int k = 1; k < steps; ++k) {
-        const double f = static_cast<double>(k) / steps;
-        Transform M = Transform::Identity();
-        M.linear() = qa.slerp(f, qb).normalized().toRotationMatrix();
-        M.translation() = A.translation() + f * (B.translation() - A.translation());
-        worst = std::max(worst, tool_penetration_mm(tool, M, sdf) + clearance_mm);
-      }
+      for_each_move_sample(Pose::from_transform(poses[i - 1]), Pose::from_transform(poses[i]), [&](const Pose& m) {
+        worst = std::max(worst, tool_penetration_mm(tool, m.to_transform(), sdf) + clearance_mm);
+        return true;
+      });
       if (worst <= 1e-6) continue;
       const double step = worst + 0.01;
       for (std::size_t j : {i - 1, i}) {
@@ -660,18 +667,16 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
     // The move onto this point (approach descents, lifts, leads): sampled every
     // kSweepStepMm with the tool of this point's region.
     if (i > 0) {
-      const Pose& a = trajectory.points[i - 1].T_base_tool;
-      const double len = (x - a.position_mm).norm();
-      const int steps = static_cast<int>(std::ceil(len / kSweepStepMm));
-      for (int k = 1; k < steps; ++k) {
-        const double f = static_cast<double>(k) / steps;
-        Pose m{a.position_mm + f * (x - a.position_mm), a.orientation.slerp(f, q).normalized()};
+      std::optional<Error> gouge;
+      for_each_move_sample(trajectory.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {
         const double pm = tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf);
-        if (pm > in.region->allowance_mm + 1e-6)
-          return fail("gouge", "on the move from point " + std::to_string(i - 1) + " at " + fmt(m.position_mm) +
-                                   " mm (base) the tool cuts " + fmt(pm, 3) + " mm into the template (allowed: " +
-                                   fmt(in.region->allowance_mm, 3) + " mm)");
-      }
+        if (pm <= in.region->allowance_mm + 1e-6) return true;
+        gouge = fail("gouge", "on the move from point " + std::to_string(i - 1) + " at " + fmt(m.position_mm) +
+                                  " mm (base) the tool cuts " + fmt(pm, 3) + " mm into the template (allowed: " +
+                                  fmt(in.region->allowance_mm, 3) + " mm)");
+        return false;
+      });
+      if (gouge) return *gouge;
     }
   }
   return {};
