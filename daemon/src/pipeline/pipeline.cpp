@@ -41,7 +41,9 @@ Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) 
   camera_views.reserve(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
     vision::View v;
-    v.cloud = vision::to_cloud(vision::remove_jump_edges(views[i].cloud, jump_edge_mm));
+    // the filter copies the view: only when it is on (off by default)
+    v.cloud = jump_edge_mm > 0.0 ? vision::to_cloud(vision::remove_jump_edges(views[i].cloud, jump_edge_mm))
+                                 : vision::to_cloud(views[i].cloud);
     if (v.cloud.empty())
       return Error{"pipeline.empty_view", "step fuse: view " + std::to_string(i) + " (slide at " +
                                               std::to_string(views[i].slide_position_mm) +
@@ -67,8 +69,10 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
       return Error{"pipeline.empty_view", "step fuse: view 0 (slide at " + std::to_string(views.front().slide_position_mm) +
                                               " mm) has no valid point: check the camera and its exposure"};
     report(progress, 1, total, "vision");
-    auto ins = vision::inspect(loaded.recipe, loaded.templ,
-                               vision::remove_jump_edges(views.front().cloud, loaded.recipe.vision.jump_edge_mm),
+    const double jump_edge_mm = loaded.recipe.vision.jump_edge_mm;
+    OrganizedCloud filtered;  // the filter copies the view: only when it is on (off by default)
+    if (jump_edge_mm > 0.0) filtered = vision::remove_jump_edges(views.front().cloud, jump_edge_mm);
+    auto ins = vision::inspect(loaded.recipe, loaded.templ, jump_edge_mm > 0.0 ? filtered : views.front().cloud,
                                views.front().T_base_camera);
     timings.push_back({"vision", ms_since(t0)});
     if (!ins) return step_error("vision", ins.error());
