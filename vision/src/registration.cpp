@@ -3,14 +3,12 @@
 
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <barrier>
 #include <cstdint>
 #include <cmath>
 #include <cstring>
 #include <fstream>
 #include <limits>
-#include <mutex>
 #include <random>
 #include <sstream>
 #include <string>
