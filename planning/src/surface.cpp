@@ -137,7 +137,11 @@ struct SampleIndex {
     if (const std::int32_t o = partner[s]; o >= 0) {
       const auto so = static_cast<std::size_t>(o);
       const double along_o = (p - points[so]).dot(normals[so]);
-      const bool convex = (points[so] - points[s]).dot(normals[s]) < 0.0;
+      // convex when the normals open away from each other (the local convexity criterion of
+      // Stein et al., LCCP, CVPR 2014); symmetric in the two samples, so a partner a few
+      // hundredths of a millimetre beside the other's plane (a sampled or stepped wall) cannot
+      // turn a convex edge concave
+      const bool convex = (normals[s] - normals[so]).dot(points[s] - points[so]) > 0.0;
       planes = convex ? std::max(along, along_o) : std::min(along, along_o);
     }
     // Where p projects onto the sampled patch around s (lateral offset within one sample

@@ -65,6 +65,28 @@ TEST(SampledSdf, EdgesAreNeitherFalseGougesNorFalseContacts) {
   }
 }
 
+// A sampled edge is rarely exact: the top face's last sample can sit a few hundredths of a
+// millimetre beside the wall's plane (the simulator's golden drew the boss wall as a staircase
+// until 1f52896). Judged from the wall's side alone that convex edge looked concave, the top's
+// tangent plane won, and points beside the wall below the top read as inside: the demo's burr
+// was refused for a 12.8 mm "gouge" 9 mm beside the boss. The convexity test is symmetric now.
+TEST(SampledSdf, AConvexEdgeStaysConvexWhenTheTopSampleOverhangsTheWall) {
+  std::vector<Vec3> pts, nrm;
+  for (double x = -19.95; x <= 0.06; x += 0.5)  // the top's last column at x = +0.05, beside the wall
+    for (double y = -10.4; y <= -0.39; y += 0.5) pts.emplace_back(x, y, 10.0), nrm.push_back(Vec3::UnitZ());
+  for (double y = -10.0; y <= 0.01; y += 0.5)  // the wall x = 0, its top sample 0.8 mm below the top
+    for (double z = 9.2; z > 0.0; z -= 0.5) pts.emplace_back(0.0, y, z), nrm.push_back(Vec3::UnitX());
+  const auto sdf = sdf_from_samples(pts, nrm);
+  // beside the wall's top corner, the wall's sample nearest: outside, at the distance to the
+  // corner or short of it by at most one spacing (off the sampled patch)
+  for (const Vec3& p : {Vec3(8.0, 3.0, 9.2), Vec3(3.0, 1.0, 9.2), Vec3(1.0, 0.5, 9.0)}) {
+    const double truth = std::hypot(p.x(), p.y());
+    EXPECT_GT(sdf(p), truth - 0.55) << p.transpose();
+    EXPECT_LE(sdf(p), truth + 0.05) << p.transpose();
+  }
+  EXPECT_NEAR(sdf(Vec3(-0.3, -5.0, 9.8)), -0.2, 0.05);  // inside below the edge stays inside
+}
+
 TEST(SampledSdf, RiserPlanOnSamplesLeavesTheAllowance) {
   auto scene = testing::make_scene();
   std::vector<Vec3> pts, nrm;
