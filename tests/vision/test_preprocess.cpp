@@ -174,6 +174,32 @@ TEST(CloudFiles, PlyRoundTrip) {
   fs::remove(p);
 }
 
+// Normals without a curvature field (what save_ply, the simulator and most scanners write):
+// read without PCL's "Failed to find match for field 'curvature'" on every load; non-finite
+// points dropped with their normals; a double-typed field still loads (PCL's conversion).
+TEST(CloudFiles, NormalsWithoutCurvatureLoadQuietlyAndStayPaired) {
+  const auto f = temp_path("normals.pcd");
+  write_text(f, "VERSION 0.7\nFIELDS x y z normal_x normal_y normal_z\nSIZE 4 4 4 4 4 4\nTYPE F F F F F F\n"
+                "COUNT 1 1 1 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n"
+                "1 2 3 0 0 2\nnan 0 0 1 0 0\n4 5 6 0 1 0\n");
+  ::testing::internal::CaptureStderr();
+  const Cloud c = load_cloud(f);
+  const std::string err = ::testing::internal::GetCapturedStderr();
+  EXPECT_EQ(err.find("curvature"), std::string::npos) << err;
+  ASSERT_EQ(c.size(), 2U);
+  ASSERT_TRUE(c.has_normals());
+  EXPECT_EQ(c.points[1], Eigen::Vector3f(4, 5, 6));
+  EXPECT_EQ(c.normals[0], Eigen::Vector3f::UnitZ());  // normalised
+  EXPECT_EQ(c.normals[1], Eigen::Vector3f::UnitY());
+  const auto d = temp_path("normals_double.pcd");
+  write_text(d, "VERSION 0.7\nFIELDS x y z normal_x normal_y normal_z\nSIZE 4 4 4 8 8 8\nTYPE F F F F F F\n"
+                "COUNT 1 1 1 1 1 1\nWIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA ascii\n7 8 9 1 0 0\n");
+  const Cloud e = load_cloud(d);
+  ASSERT_EQ(e.size(), 1U);
+  EXPECT_EQ(e.points[0], Eigen::Vector3f(7, 8, 9));
+  for (const auto& p : {f, d}) fs::remove(p);
+}
+
 TEST(CloudFiles, BadInputIsAUserErrorThatSaysWhat) {
   EXPECT_THAT([] { (void)load_cloud("/nonexistent/scan.ply"); },
               ::testing::ThrowsMessage<fettle::UserError>(HasSubstr("no such file")));

@@ -2,9 +2,12 @@
 #include "fettle/vision/cloud.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <fstream>
+#include <optional>
 #include <sstream>
 #include <string>
 
@@ -33,6 +36,22 @@ namespace {
 
 bool has_field(const pcl::PCLPointCloud2& blob, const std::string& name) {
   return std::any_of(blob.fields.begin(), blob.fields.end(), [&](const auto& f) { return f.name == name; });
+}
+
+/// Byte offsets of the named fields when each is one FLOAT32 (the PLY and PCD files Fettle and
+/// most scanners write), else nothing.
+template <std::size_t N>
+std::optional<std::array<std::uint32_t, N>> float32_offsets(const pcl::PCLPointCloud2& blob,
+                                                            const std::array<const char*, N>& names) {
+  std::array<std::uint32_t, N> out{};
+  for (std::size_t k = 0; k < N; ++k) {
+    const auto it = std::find_if(blob.fields.begin(), blob.fields.end(), [&](const auto& f) { return f.name == names[k]; });
+    if (it == blob.fields.end() || it->datatype != pcl::PCLPointField::FLOAT32 || it->count != 1 ||
+        it->offset + sizeof(float) > blob.point_step)
+      return std::nullopt;
+    out[k] = it->offset;
+  }
+  return out;
 }
 
 std::string lower_extension(const std::filesystem::path& file) {
@@ -206,16 +225,30 @@ Cloud load_cloud(const std::filesystem::path& file) {
   Cloud out;
   const bool normals = has_field(blob, "normal_x") && has_field(blob, "normal_y") && has_field(blob, "normal_z");
   if (normals) {
-    pcl::PointCloud<pcl::PointNormal> pc;
-    pcl::fromPCLPointCloud2(blob, pc);
-    out.points.reserve(pc.size());
-    out.normals.reserve(pc.size());
-    for (const auto& p : pc) {
-      const Eigen::Vector3f v = p.getVector3fMap();
-      const Eigen::Vector3f n = p.getNormalVector3fMap();
-      if (!v.allFinite()) continue;
+    auto keep = [&](const Eigen::Vector3f& v, const Eigen::Vector3f& n) {
+      if (!v.allFinite()) return;
       out.points.push_back(v);
       out.normals.push_back(n.allFinite() && n.norm() > 0.5f ? Eigen::Vector3f(n.normalized()) : Eigen::Vector3f::Zero());
+    };
+    out.points.reserve(total);
+    out.normals.reserve(total);
+    // Read float fields in place; PCL's PointNormal conversion wants a curvature field as well
+    // and prints "Failed to find match for field 'curvature'" for every file without one.
+    const auto at = float32_offsets(blob, std::array{"x", "y", "z", "normal_x", "normal_y", "normal_z"});
+    if (at && blob.row_step >= static_cast<std::size_t>(blob.width) * blob.point_step &&
+        blob.data.size() >= static_cast<std::size_t>(blob.height) * blob.row_step) {
+      for (std::uint32_t r = 0; r < blob.height; ++r)
+        for (std::uint32_t c = 0; c < blob.width; ++c) {
+          const std::uint8_t* base = blob.data.data() + static_cast<std::size_t>(r) * blob.row_step +
+                                     static_cast<std::size_t>(c) * blob.point_step;
+          float f[6];
+          for (std::size_t k = 0; k < 6; ++k) std::memcpy(&f[k], base + (*at)[k], sizeof(float));
+          keep(Eigen::Vector3f(f[0], f[1], f[2]), Eigen::Vector3f(f[3], f[4], f[5]));
+        }
+    } else {
+      pcl::PointCloud<pcl::PointNormal> pc;
+      pcl::fromPCLPointCloud2(blob, pc);
+      for (const auto& p : pc) keep(p.getVector3fMap(), p.getNormalVector3fMap());
     }
     // A normal field that is mostly zeros or NaNs is no normal field; a few invalid ones
     // stay zero (no direction: they add nothing to point-to-plane terms).
