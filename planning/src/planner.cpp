@@ -3,6 +3,7 @@
 #include "fettle/planning/planner.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <map>
@@ -203,6 +204,38 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
   plan.conic = *conic;
   const auto geom = ellipse_geometry(*conic);
   if (!geom) return region_error(region.name, "fit", "the fitted conic is not an ellipse");
+  // A ring fitted to a short arc is ill-posed (a re-grind's leftover pieces, a region the camera
+  // barely sees): five points on 40 degrees fit an ellipse of any size. The flash must go round
+  // the ring, and the ring must lie in the region's ROI, before a tool is put to it.
+  {
+    constexpr int kSectors = 36;
+    std::array<bool, kSectors> seen{};
+    for (const auto& q : uv) {
+      const Eigen::Vector2d d = q - geom->center;
+      const double a = std::atan2(d.y(), d.x()) + std::numbers::pi;
+      seen[static_cast<std::size_t>(std::clamp(static_cast<int>(a / (2 * std::numbers::pi) * kSectors), 0, kSectors - 1))] = true;
+    }
+    const auto covered = std::count(seen.begin(), seen.end(), true);
+    const Vec3 c3 = origin + geom->center.x() * e1 + geom->center.y() * e2;
+    const Vec3 roi_c(region.roi_center_mm[0], region.roi_center_mm[1], region.roi_center_mm[2]);
+    const Vec3 roi_half = 0.5 * Vec3(region.roi_size_mm[0], region.roi_size_mm[1], region.roi_size_mm[2]);
+    if (geom->semi_minor < 0.5 * geom->semi_major)
+      return region_error(region.name, "fit",
+                          "the ellipse fitted to the " + std::to_string(pts.size()) + " flash points is elongated (" +
+                              fmt(geom->semi_major) + " x " + fmt(geom->semi_minor) +
+                              " mm): the points do not outline a ring (too short an arc?); "
+                              "check that the scan sees the flash all round");
+    if (2 * covered < kSectors)
+      return region_error(region.name, "fit",
+                          std::to_string(pts.size()) + " flash points cover " + std::to_string(covered * 10) +
+                              " of the ring's 360 degrees: too short an arc to fit the ring (at least 180 degrees); "
+                              "check that the scan sees the flash all round");
+    if (((c3 - roi_c).cwiseAbs().array() > roi_half.array()).any() || geom->semi_major > roi_half.head<2>().norm())
+      return region_error(region.name, "fit",
+                          "the fitted ring (centre " + fmt(c3) + ", semi-axes " + fmt(geom->semi_major) + " x " +
+                              fmt(geom->semi_minor) + " mm, part frame) does not lie in the region's ROI; "
+                              "check the ROI and the scan");
+  }
 
   // arc length along the ellipse, then contact points at the configured spacing (≤ 1 mm)
   const double spacing = std::clamp(region.point_spacing_mm, 0.05, 1.0);

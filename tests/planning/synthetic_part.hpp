@@ -110,6 +110,8 @@ inline Scene make_scene(double pitch_mm = 0.5, const Transform& T_base_part = Tr
   ring.feed_mm_s = 20.0;
   ring.spindle_rpm = 8000.0;
   ring.overlap_mm = 10.0;
+  ring.roi_center_mm = {0.0, 0.0, 50.0};  // the ROIs of config/parts/pump-body.toml
+  ring.roi_size_mm = {110.0, 110.0, 20.0};
   config::Region rs;
   rs.name = "riser";
   rs.type = config::RegionType::riser;
@@ -120,12 +122,16 @@ inline Scene make_scene(double pitch_mm = 0.5, const Transform& T_base_part = Tr
   rs.stepover_mm = 4.0;
   rs.margin_mm = 3.0;
   rs.allowance_mm = 0.05;
+  rs.roi_center_mm = {-82.0, 48.0, 52.0};
+  rs.roi_size_mm = {60.0, 60.0, 40.0};
   config::Region boss;
   boss.name = "boss-circle";
   boss.type = config::RegionType::circle_flash;
   boss.tool = "ball-12";
   boss.feed_mm_s = 15.0;
   boss.spindle_rpm = 9000.0;
+  boss.roi_center_mm = {82.0, -48.0, 47.0};
+  boss.roi_size_mm = {30.0, 30.0, 20.0};
   config::Region side;
   side.name = "side-parting-line";
   side.type = config::RegionType::straight_flash;
@@ -133,6 +139,8 @@ inline Scene make_scene(double pitch_mm = 0.5, const Transform& T_base_part = Tr
   side.feed_mm_s = 25.0;
   side.spindle_rpm = 9000.0;
   side.passes = 2;
+  side.roi_center_mm = {-30.0, -70.0, 37.0};
+  side.roi_size_mm = {140.0, 20.0, 12.0};
   s.regions = {ring, rs, boss, side};
 
   std::vector<std::vector<Vec3>> points = {

@@ -39,6 +39,8 @@ FinScene fin_scene(config::FlashContact contact) {
   s.ring.contact = contact;
   s.ring.overlap_mm = 10.0;
   s.ring.allowance_mm = 0.05;
+  s.ring.roi_center_mm = {0.0, 0.0, 50.0};
+  s.ring.roi_size_mm = {110.0, 110.0, 20.0};
   s.input.region = &s.ring;
   s.input.tool = &s.disc;
   // the camera sees the fin's top face (z = 50.6)

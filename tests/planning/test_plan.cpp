@@ -67,6 +67,33 @@ TEST(RiserPlan, LayersCoverTheFootprintAndLeaveTheAllowance) {
   for (std::size_t i = 1; i < rows.size(); ++i) EXPECT_LE(rows[i] - rows[i - 1], 4.0 + 1e-6);
 }
 
+// A ring is fitted only to flash that goes round it and only where the recipe says the ring is:
+// a re-grind's leftover arc or a region the camera barely sees is refused with the reason, never
+// turned into a loop around a guessed ellipse (the demo's re-grind once put the disc 7 mm into
+// the flange that way).
+TEST(RingPlan, AShortArcOrARingOutsideTheRoiIsRefusedWithTheReason) {
+  auto scene = make_scene();
+  RegionInput arc = scene.inputs[0];
+  std::vector<Vec3> kept;
+  for (const auto& p : arc.excess_points_part)
+    if (std::atan2(p.y(), p.x()) > 0.0 && std::atan2(p.y(), p.x()) < 1.2) kept.push_back(p);  // ~70 degrees
+  ASSERT_GT(kept.size(), 20U);
+  arc.excess_points_part = kept;
+  const auto short_arc = plan_region(arc, PlannerSettings{});
+  ASSERT_FALSE(short_arc);
+  EXPECT_EQ(short_arc.error().code, "planning.fit");
+  EXPECT_NE(short_arc.error().message.find("too short an arc"), std::string::npos) << short_arc.error().message;
+  EXPECT_NE(short_arc.error().message.find("flange-ring"), std::string::npos) << short_arc.error().message;
+
+  config::Region elsewhere = *scene.inputs[0].region;
+  elsewhere.roi_center_mm = {100.0, 0.0, 50.0};  // the ROI 100 mm beside the flange
+  RegionInput moved = scene.inputs[0];
+  moved.region = &elsewhere;
+  const auto outside = plan_region(moved, PlannerSettings{});
+  ASSERT_FALSE(outside);
+  EXPECT_NE(outside.error().message.find("does not lie in the region's ROI"), std::string::npos) << outside.error().message;
+}
+
 TEST(RingPlan, ClosedChamferLoopAtOneMillimetreSpacingWithOverlapAndLeads) {
   auto scene = make_scene();
   const RegionInput& in = scene.inputs[0];
