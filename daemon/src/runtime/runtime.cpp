@@ -688,8 +688,24 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   // await_op, double-freed the region names at the first re-grind (core dump, 2026-11-30) and
   // can drop the views' refcount early (likely the earlier segfault in vision::to_cloud).
   // Everything non-trivial handed to await_op is therefore a named local of this frame.
+  void report_process_error(Cycle& c, const Error& e, std::string* part_error) {
+    const bool planning = e.code.rfind("planning", 0) == 0;
+    if (part_error != nullptr && (planning || e.code.rfind("vision", 0) == 0)) {
+      *part_error = e.message + " [" + e.code + "]";
+      c.end();
+      return;
+    }
+    fail(c, e, planning ? FaultCode::plan_failed : FaultCode::vision_failed);
+  }
+
+  /// Vision + planning in the worker pool. With `part_error`, an error about the part itself
+  /// (vision.* or planning.*: it cannot be located or planned) is returned there instead of
+  /// faulting the cell: a re-grind that cannot be planned makes the part NOK, not the cell Held.
+  /// `name` is a literal: no temporary with a destructor in the callers' co_await expressions
+  /// (GCC 12 destroys those twice, see below).
   asio::awaitable<std::optional<ProcessOutput>> process_views(Cycle& c, const std::vector<View>& views,
-                                                              const ProcessOptions& process_options, const std::string& name) {
+                                                              const ProcessOptions& process_options, const char* name,
+                                                              std::string* part_error = nullptr) {
     const ProcessOptions po = process_options;
     c.begin(name);
     publish_state();
@@ -714,7 +730,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       co_return std::nullopt;
     }
     if (!*r) {
-      fail(c, r->error(), r->error().code.rfind("planning", 0) == 0 ? FaultCode::plan_failed : FaultCode::vision_failed);
+      report_process_error(c, r->error(), part_error);
       co_return std::nullopt;
     }
     c.end();
@@ -851,22 +867,59 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     if (!co_await scan(c, rescan, "rescan")) co_return;
     auto v = co_await verify_views(c, rescan);
     if (!v) co_return;
+    log_verification(c, *v, "verification");
     if (v->verdict == Verdict::regrind) {
-      log->info("cycle {}: re-grind of {} region(s)", c.summary.id, v->regrind_regions().size());
-      c.first_verification = std::move(v);
       ProcessOptions po;
-      po.regions = c.first_verification->regrind_regions();
-      auto again = co_await process_views(c, rescan, po, "process regrind");
-      if (!again) co_return;
-      write_process_outputs(c, *again, "regrind_");
+      po.regions = v->regrind_regions();
+      log->info("cycle {}: re-grind of {} region(s): {}", c.summary.id, po.regions.size(), fmt::join(po.regions, ", "));
+      c.first_verification = std::move(v);
+      std::string not_planned;
+      auto again = co_await process_views(c, rescan, po, "process regrind", &not_planned);
+      // The part stays NOK on its first verification (the cell carries on with the next part)
+      // when the re-grind cannot be planned, or leaves nothing to plan: what is left lies below
+      // the planner's excess threshold or the camera barely sees it, so a second pass would
+      // grind air and a second re-scan would say the same.
+      std::string skipped;
+      if (!again && !not_planned.empty())
+        skipped = "re-grind not possible: " + not_planned;
+      else if (again && again->trajectory.points.empty())
+        skipped = fmt::format("re-grind skipped: the re-scan leaves nothing above the excess threshold to plan in {}",
+                              fmt::join(po.regions, ", "));
+      if (!again && skipped.empty()) co_return;  // a cell fault
+      if (again) write_process_outputs(c, *again, "regrind_");
+      if (!skipped.empty()) {
+        skipped += "; the part is NOK on its first verification";
+        log->warn("cycle {}: {}", c.summary.id, skipped);
+        c.warnings.push_back(skipped);
+        if (again) c.regrinds.push_back(std::move(*again));
+        c.verification = std::move(c.first_verification);
+        c.first_verification.reset();
+        c.verification->verdict = Verdict::nok;
+        c.result = "NOK";
+        co_return;
+      }
       if (!co_await grind(c, again->trajectory, " regrind")) co_return;
       c.regrinds.push_back(std::move(*again));
       if (!co_await scan(c, rescan, "rescan2")) co_return;
       v = co_await verify_views(c, rescan);
       if (!v) co_return;
+      log_verification(c, *v, "verification after the re-grind");
     }
     c.verification = std::move(v);
     c.result = c.verification->verdict == Verdict::ok ? "OK" : "NOK";
+  }
+
+  /// One line per region: what the maintenance engineer needs to see why a part is NOK.
+  void log_verification(const Cycle& c, const VerificationResult& v, const char* what) {
+    for (const auto& r : v.regions) {
+      const auto line = fmt::format("cycle {}: {} of '{}': {} ({} ROI points, {:.2f} % > 0.3 mm, {:.2f} % > 0.5 mm, "
+                                    "max {:.2f} mm above / {:.2f} mm below the template){}{}",
+                                    c.summary.id, what, r.name, to_string(r.verdict), r.roi_points, r.share_over_0_3_pct,
+                                    r.share_over_0_5_pct, r.max_above_mm, r.max_below_mm, r.reason.empty() ? "" : ": ",
+                                    r.reason);
+      if (r.verdict == Verdict::ok) log->info("{}", line);
+      else log->warn("{}", line);
+    }
   }
 
   void write_process_outputs(Cycle& c, const ProcessOutput& out, const std::string& prefix) {
