@@ -365,13 +365,20 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       else gouge = std::max(gouge, r->max_gouge_depth_mm());
       i = j;
     }
-    for (const auto& r : casting->material()) after += r.volume_mm3;
+    std::string left;
+    for (const auto& r : casting->material()) {
+      after += r.volume_mm3;
+      char part[120];
+      std::snprintf(part, sizeof part, "%s%s %.1f mm3 / %.2f mm", left.empty() ? "" : ", ", r.name.c_str(), r.volume_mm3,
+                    r.max_height_mm);
+      left += part;
+    }
     ++casting_version;
     char buf[200];
     std::snprintf(buf, sizeof buf, "ground %zu points: material %.0f -> %.0f mm3, deepest gouge %.2f mm (%.1f s)",
                   t.points.size(), before, after, gouge,
                   std::chrono::duration<double>(Clock::now() - t0).count());
-    event(buf);
+    event(std::string(buf) + "; left per region (volume / height): " + left);
   }
 
   // ---- the automatic loop ----
