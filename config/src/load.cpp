@@ -169,6 +169,7 @@ void read_part(TableReader& root, PartRecipe& part) {
         t.number("spindle_rpm", r.spindle_rpm, {100.0, 100000.0});
         t.number("excess_threshold_mm", r.excess_threshold_mm, {0.0, 50.0});
         t.number("allowance_mm", r.allowance_mm, {0.0, 10.0});
+        t.enumeration("pose", r.pose, {{"region", RegionPose::region}, {"part", RegionPose::part}});
         // Keys of one region type are unknown for the others: a misplaced key is an error.
         switch (r.type) {
           case RegionType::ring_flash:

@@ -288,6 +288,17 @@ TEST_F(ConfigFileTest, UnknownRegionTypeListsTheTypes) {
   EXPECT_THAT(d[0].message, HasSubstr("ring_flash, riser, straight_flash, circle_flash"));
 }
 
+TEST_F(ConfigFileTest, RegionPoseIsRegionOrPart) {
+  const auto bad = check_file(write("part.toml", kPart + "pose = \"whole\"\n"));
+  ASSERT_EQ(bad.size(), 1U) << all(bad);
+  EXPECT_EQ(bad[0].key, "regions[0].pose");
+  EXPECT_THAT(bad[0].message, HasSubstr("region, part"));
+  const auto good = write("part.toml", kPart + "pose = \"part\"\n");
+  EXPECT_TRUE(check_file(good).empty());
+  EXPECT_EQ(fettle::config::load_part(good).regions[0].pose, fettle::config::RegionPose::part);
+  EXPECT_EQ(fettle::config::load_part(write("p2.toml", kPart)).regions[0].pose, fettle::config::RegionPose::region);
+}
+
 TEST_F(ConfigFileTest, KindCanBeForced) {
   const auto d = check_file(write("part.toml", kPart), FileKind::cell);
   EXPECT_FALSE(d.empty());  // a part file is not a valid cell file

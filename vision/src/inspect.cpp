@@ -249,6 +249,10 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   const double whole_voxel = std::max(2.0 * scene_voxel(recipe), vs.coarse_voxel_mm);
   const Cloud scene_whole = voxel_downsample(scene, whole_voxel);
   FineSettings wfs = fs;
+  // Robust (Tukey) weights: flash and risers are material the template does not have, up to
+  // 4 mm beside a wall; with plain least squares they pulled the whole part 0.3-0.7 mm sideways
+  // (simulator, 3 seeds), and every region refined from there or planned on it inherited it.
+  wfs.robust = true;
   wfs.fitness_distance = std::max(whole_voxel, 3.0 * templ.whole().fine_spacing());
   std::optional<Registration> best;
   if (coarse_result) {
@@ -282,7 +286,12 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     FineSettings rfs = fs;
     rfs.max_distance = 2.0;
     rfs.robust = true;
+    // pose = "part": the whole part's pose (no iteration), its fitness measured on the region's
+    // template as the region's own fit would be
+    const bool part_pose = rt.region.pose == config::RegionPose::part;
+    if (part_pose) rfs.max_iterations = 0;
     auto r = refine(rt.cloud, local, out.whole.T_scene_template, rfs);
+    if (r && part_pose) r->converged = true;
     if (!r) {
       rr.error = Error{r.error().code, "region '" + rr.name + "': " + r.error().message};
     } else {

@@ -18,6 +18,10 @@ enum class ToolShape { cylinder, ball, cone };
 /// cylindrical tool (axis along the parting plane normal) runs against the wall the fin
 /// stands out of, grinding it flush (a fin below the top of a flange or boss).
 enum class FlashContact { chamfer, periphery };
+/// Where a region's pose comes from: its own fine ICP on the region's template, or the whole
+/// part's (for a region whose visible surface does not fix it sideways, e.g. a flange wall the
+/// camera sees only at grazing angles).
+enum class RegionPose { region, part };
 
 const char* to_string(RegionType type);
 const char* to_string(ToolShape shape);
@@ -41,6 +45,7 @@ struct Region {
   double spindle_rpm = 6000.0;
   double excess_threshold_mm = 0.2;  ///< material higher than this above the template is excess
   double allowance_mm = 0.05;        ///< left above the template by the last pass
+  RegionPose pose = RegionPose::region;
   // ring_flash / circle_flash
   double chamfer_deg = 45.0;
   double point_spacing_mm = 1.0;
