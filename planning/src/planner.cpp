@@ -205,8 +205,9 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
   const auto geom = ellipse_geometry(*conic);
   if (!geom) return region_error(region.name, "fit", "the fitted conic is not an ellipse");
   // A ring fitted to a short arc is ill-posed (a re-grind's leftover pieces, a region the camera
-  // barely sees): five points on 40 degrees fit an ellipse of any size. The flash must go round
-  // the ring, and the ring must lie in the region's ROI, before a tool is put to it.
+  // barely sees): five points on 40 degrees fit an ellipse of any size. The flash must outline
+  // the ring (round, on a third of it at least: a fin with gaps, partly hidden, still does), and
+  // the ring must lie in the region's ROI, before a tool is put to it.
   {
     constexpr int kSectors = 36;
     std::array<bool, kSectors> seen{};
@@ -225,10 +226,10 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
                               fmt(geom->semi_major) + " x " + fmt(geom->semi_minor) +
                               " mm): the points do not outline a ring (too short an arc?); "
                               "check that the scan sees the flash all round");
-    if (2 * covered < kSectors)
+    if (3 * covered < kSectors)
       return region_error(region.name, "fit",
                           std::to_string(pts.size()) + " flash points cover " + std::to_string(covered * 10) +
-                              " of the ring's 360 degrees: too short an arc to fit the ring (at least 180 degrees); "
+                              " of the ring's 360 degrees: too short an arc to fit the ring (at least 120 degrees); "
                               "check that the scan sees the flash all round");
     if (((c3 - roi_c).cwiseAbs().array() > roi_half.array()).any() || geom->semi_major > roi_half.head<2>().norm())
       return region_error(region.name, "fit",
