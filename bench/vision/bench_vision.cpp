@@ -277,7 +277,8 @@ int main(int argc, char** argv) {
                   truth.volume_mm3, last->regions[i].ok() ? "" : "  ", last->regions[i].ok() ? "" : last->regions[i].error->message.c_str());
     }
     const bool fettle_ok = fettle_median <= 0.6 && peak <= 1024.0 && fa.failed == 0;
-    std::printf("target: median <= 0.6 s, peak RSS <= 1024 MiB: %s\n", fettle_ok ? "met" : "NOT MET");
+    std::printf("target: median <= 0.6 s, peak RSS <= 1024 MiB, every region found: %s\n",
+                fettle_ok ? "met" : fa.failed != 0 ? "NOT MET (a region failed)" : "NOT MET");
 
 #ifdef FETTLE_WITH_OPEN3D
     if (!with_open3d) {
