@@ -62,7 +62,9 @@ int plan(const Args& a) {
   nlohmann::ordered_json report;
   report["part_id"] = recipe.id;
   report["scan"] = a.scan.string();
-  report["calibration"] = {{"file", a.calib.string()}, {"id", calibration.id}, {"date", calibration.date}};
+  const auto cal_id = fettle::config::calibration_identity(calibration);
+  report["calibration"] = {
+      {"file", a.calib.string()}, {"id", cal_id.id}, {"date", cal_id.date}, {"sha256", cal_id.sha256}};
   nlohmann::ordered_json timings = nlohmann::ordered_json::object();
   for (const auto& t : out->timings) timings[t.step + "_ms"] = t.ms;
   timings["total_ms"] = out->total_ms;

@@ -229,6 +229,21 @@ TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
   for (auto r : results)
     EXPECT_TRUE(r == fettle::drivers::plc::CycleResult::ok || r == fettle::drivers::plc::CycleResult::nok);
   EXPECT_EQ(fault_code(), 0);
+  // Every cycle's record: report.json with the result, the calibration's identity (sha256 of the
+  // file as read) and every file it lists present.
+  std::size_t records = 0;
+  for (const auto& d : fs::directory_iterator(dir_ / "state/cycles")) {
+    if (!d.is_directory()) continue;
+    ++records;
+    const auto report = nlohmann::json::parse(read_text(d.path() / "report.json"));
+    const std::string result = report.value("result", "");
+    EXPECT_TRUE(result == "OK" || result == "NOK") << d.path() << ": " << result;
+    const std::string sha = report["calibration"].value("sha256", "");
+    EXPECT_EQ(sha.size(), 64U) << d.path();
+    EXPECT_EQ(sha.find_first_not_of("0123456789abcdef"), std::string::npos) << sha;
+    for (const auto& f : report["files"]) EXPECT_TRUE(fs::exists(d.path() / f.get<std::string>())) << d.path() << " " << f;
+  }
+  EXPECT_EQ(records, 3U);
 }
 
 TEST_F(Fettled, DISABLED_B_CameraTimeoutHolds) {

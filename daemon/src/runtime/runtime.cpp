@@ -1018,8 +1018,11 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
                           {"part_id", c.recipe->recipe.id},
                           {"file", c.recipe->recipe.source.string()},
                           {"golden", c.recipe->golden_identity}};
-    if (calibration)
-      report["calibration"] = {{"id", calibration->id}, {"date", calibration->date}, {"file", calibration->source.string()}};
+    if (calibration) {
+      const auto cal_id = config::calibration_identity(*calibration);
+      report["calibration"] = {
+          {"id", cal_id.id}, {"date", cal_id.date}, {"sha256", cal_id.sha256}, {"file", cal_id.file.string()}};
+    }
     if (c.processed) report["process"] = process_json(*c.processed);
     if (!c.regrinds.empty()) report["regrind_process"] = process_json(c.regrinds.front());
     report["regrinds"] = c.regrinds.size();
