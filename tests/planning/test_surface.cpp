@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 
 #include "fettle/planning/surface.hpp"
 #include "synthetic_part.hpp"
@@ -85,6 +86,31 @@ TEST(SampledSdf, AConvexEdgeStaysConvexWhenTheTopSampleOverhangsTheWall) {
     EXPECT_LE(sdf(p), truth + 0.05) << p.transpose();
   }
   EXPECT_NEAR(sdf(Vec3(-0.3, -5.0, 9.8)), -0.2, 0.05);  // inside below the edge stays inside
+}
+
+// The nearest-sample search skips shells of cells known to be empty; the answer must not depend
+// on the cell size: one 200 mm cell is a brute-force search over every sample.
+TEST(SampledSdf, TheAnswerDoesNotDependOnTheCellSize) {
+  std::vector<Vec3> pts, nrm;
+  sample_pad(pts, nrm);
+  // the pad's top and wall samples meet in coincident points with different normals: an exact
+  // tie that any search order may break either way; move the wall's off the top's
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    if (nrm[i].y() < -0.5) pts[i].x() += 0.013;
+  const auto brute = sdf_from_samples(pts, nrm, 200.0, 25.0);
+  const auto coarse = sdf_from_samples(pts, nrm, 4.0, 25.0);
+  const auto fine = sdf_from_samples(pts, nrm, 0.7, 25.0);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> x(-150.0, -20.0), y(-20.0, 125.0), z(0.0, 90.0);
+  int far = 0;
+  for (int k = 0; k < 3000; ++k) {
+    const Vec3 p(x(rng), y(rng), z(rng));  // in the air, near the pad, and beyond the samples' box
+    const double b = brute(p);
+    far += b >= 25.0 ? 1 : 0;
+    ASSERT_DOUBLE_EQ(coarse(p), b) << p.transpose();
+    ASSERT_DOUBLE_EQ(fine(p), b) << p.transpose();
+  }
+  EXPECT_GT(far, 100);  // some queries had no sample within reach
 }
 
 TEST(SampledSdf, RiserPlanOnSamplesLeavesTheAllowance) {
