@@ -7,10 +7,14 @@
 //
 // Seeds: FETTLE_ACCURACY_SEEDS (default 8; `make accuracy-vision` runs 50).
 //
-// DISABLED (not run by ctest / CI) because the vision stage does not meet it yet: on 3 seeds
-// (2026-11-30, robust whole-part ICP, flange on the part's pose) the region errors were
-// 0.10-0.18 mm / 0.03-0.11 degrees (median; the whole part's pose carries a 0.11 degree yaw)
-// and the riser region fails its 0.6 fitness. `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
+// FETTLE_ACCURACY_GROUND=1 removes every bit of flash and riser first (an oracle grind): it
+// separates the pull of the material from the scanner's errors.
+//
+// DISABLED (not run by ctest / CI) because the vision stage does not meet it yet: on 8 seeds
+// (2026-11-30, whole-part ICP trimming points > 0.3 mm outside, flange on the part's pose) the
+// median region errors were flange 0.06 mm, straight flash 0.08 mm, boss 0.13 mm (its own ICP;
+// the whole part's pose is 0.04 mm there) at 0.03-0.13 degrees, and the riser region fails its
+// 0.6 fitness on 7 of 8 seeds. `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
 // remove the DISABLED_ prefix once it passes.
 #include <gtest/gtest.h>
 
@@ -84,7 +88,8 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
   std::vector<double> riser_volume_error;
   int failures = 0;
   for (int seed = 1; seed <= seeds; ++seed) {
-    const auto casting = fettle::sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
+    auto casting = fettle::sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
+    if (std::getenv("FETTLE_ACCURACY_GROUND") != nullptr) casting.remove_all_material();
     const auto capture = scanner.capture(casting, 0.0);
     const auto r = inspect(recipe, templ, capture.cloud, capture.truth.T_base_camera);
     if (!r) {

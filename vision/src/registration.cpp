@@ -407,6 +407,7 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     const std::size_t stride = d > d_min ? std::max<std::size_t>(1, scene.size() / settings.coarse_points) : 1;
     const bool use_grid = T.grid && d <= T.settings.nearest_grid_band;
     const bool robust = settings.robust && d <= d_min;
+    const bool trim = settings.trim_outside_mm > 0 && d <= d_min;
     detail::parallel_for(scene.size() / stride, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
       Mat6 H = Mat6::Zero();
       Vec6 g = Vec6::Zero();
@@ -422,6 +423,7 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
         const Eigen::Vector3f& nm = T.fine.normals[static_cast<std::size_t>(j)];
         const double r = nm.dot(q - m);
         double w = 1.0;
+        if (trim && r > settings.trim_outside_mm) continue;
         if (robust) {
           res.push_back(static_cast<float>(std::abs(r)));
           if (std::abs(r) >= tukey) continue;
