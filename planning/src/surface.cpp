@@ -90,12 +90,12 @@ struct SampleIndex {
     const auto reach = static_cast<std::int64_t>(std::ceil(search / cell));
     // farther than `search` from every cell of the grid: no sample can be within reach
     auto gap = [&](std::int64_t c, std::int64_t n) { return c < 0 ? -c : (c >= n ? c - n + 1 : 0); };
-    if (std::max({gap(ci, nx), gap(cj, ny), gap(ck, nz)}) > reach) return -1;
+    const std::int64_t outside = std::max({gap(ci, nx), gap(cj, ny), gap(ck, nz)});
+    if (outside > reach) return -1;
     std::int64_t found = -1;
     // shells nearer than the nearest occupied cell are empty (a query outside the grid starts
     // at its distance to the grid)
-    std::int64_t r0 = std::max({gap(ci, nx), gap(cj, ny), gap(ck, nz)});
-    if (r0 == 0) r0 = empty_shells[flat(ci, cj, ck)];
+    const std::int64_t r0 = outside > 0 ? outside : std::int64_t{empty_shells[flat(ci, cj, ck)]};
     for (std::int64_t r = r0; r <= reach; ++r) {
       // shell r around the query cell (clipped to the grid); stop once a sample is found
       // closer than the shell

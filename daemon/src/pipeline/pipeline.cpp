@@ -34,6 +34,14 @@ Error step_error(const std::string& step, const Error& inner) {
   return Error{inner.code.empty() ? "pipeline." + step : inner.code, "step " + step + ": " + inner.message};
 }
 
+/// The view without flying pixels when vision.jump_edge_mm is on (the filtered copy is kept in
+/// `storage`), else the view itself: the filter copies a whole view, off by default.
+const OrganizedCloud& without_jump_edges(const OrganizedCloud& view, double jump_edge_mm, OrganizedCloud& storage) {
+  if (!(jump_edge_mm > 0.0)) return view;
+  storage = vision::remove_jump_edges(view, jump_edge_mm);
+  return storage;
+}
+
 /// The views in the base (= fixture) frame, fused into one cloud when there are several.
 Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) {
   if (views.empty()) return Error{"pipeline.no_views", "step fuse: no views were captured"};
@@ -41,9 +49,8 @@ Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) 
   camera_views.reserve(views.size());
   for (std::size_t i = 0; i < views.size(); ++i) {
     vision::View v;
-    // the filter copies the view: only when it is on (off by default)
-    v.cloud = jump_edge_mm > 0.0 ? vision::to_cloud(vision::remove_jump_edges(views[i].cloud, jump_edge_mm))
-                                 : vision::to_cloud(views[i].cloud);
+    OrganizedCloud filtered;
+    v.cloud = vision::to_cloud(without_jump_edges(views[i].cloud, jump_edge_mm, filtered));
     if (v.cloud.empty())
       return Error{"pipeline.empty_view", "step fuse: view " + std::to_string(i) + " (slide at " +
                                               std::to_string(views[i].slide_position_mm) +
@@ -69,10 +76,9 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
       return Error{"pipeline.empty_view", "step fuse: view 0 (slide at " + std::to_string(views.front().slide_position_mm) +
                                               " mm) has no valid point: check the camera and its exposure"};
     report(progress, 1, total, "vision");
-    const double jump_edge_mm = loaded.recipe.vision.jump_edge_mm;
-    OrganizedCloud filtered;  // the filter copies the view: only when it is on (off by default)
-    if (jump_edge_mm > 0.0) filtered = vision::remove_jump_edges(views.front().cloud, jump_edge_mm);
-    auto ins = vision::inspect(loaded.recipe, loaded.templ, jump_edge_mm > 0.0 ? filtered : views.front().cloud,
+    OrganizedCloud filtered;
+    auto ins = vision::inspect(loaded.recipe, loaded.templ,
+                               without_jump_edges(views.front().cloud, loaded.recipe.vision.jump_edge_mm, filtered),
                                views.front().T_base_camera);
     timings.push_back({"vision", ms_since(t0)});
     if (!ins) return step_error("vision", ins.error());

@@ -683,11 +683,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     co_return co_await slide_to(c, 0);
   }
 
-  // GCC 12 destroys a temporary with a non-trivial destructor in a co_await expression twice:
-  // a lambda capturing shared_ptrs and ProcessOptions by value, passed straight into
-  // await_op, double-freed the region names at the first re-grind (core dump, 2026-11-30) and
-  // can drop the views' refcount early (likely the earlier segfault in vision::to_cloud).
-  // Everything non-trivial handed to await_op is therefore a named local of this frame.
+  /// A failed process(): a cell fault, or with `part_error` an error about the part itself
+  /// (vision.* or planning.*) returned there (see process_views).
   void report_process_error(Cycle& c, const Error& e, std::string* part_error) {
     const bool planning = e.code.rfind("planning", 0) == 0;
     if (part_error != nullptr && (planning || e.code.rfind("vision", 0) == 0)) {
@@ -698,11 +695,16 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     fail(c, e, planning ? FaultCode::plan_failed : FaultCode::vision_failed);
   }
 
+  // GCC 12 destroys a temporary with a non-trivial destructor in a co_await expression twice:
+  // a lambda capturing shared_ptrs and ProcessOptions by value, passed straight into
+  // await_op, double-freed the region names at the first re-grind (core dump, 2026-11-30) and
+  // can drop the views' refcount early (likely the earlier segfault in vision::to_cloud).
+  // Everything non-trivial handed to await_op is therefore a named local of this frame.
   /// Vision + planning in the worker pool. With `part_error`, an error about the part itself
   /// (vision.* or planning.*: it cannot be located or planned) is returned there instead of
   /// faulting the cell: a re-grind that cannot be planned makes the part NOK, not the cell Held.
   /// `name` is a literal: no temporary with a destructor in the callers' co_await expressions
-  /// (GCC 12 destroys those twice, see below).
+  /// (GCC 12 destroys those twice, see above).
   asio::awaitable<std::optional<ProcessOutput>> process_views(Cycle& c, const std::vector<View>& views,
                                                               const ProcessOptions& process_options, const char* name,
                                                               std::string* part_error = nullptr) {
