@@ -10,6 +10,7 @@
 #include "fettle/config/calibration.hpp"
 #include "fettle/core/geometry.hpp"
 #include "fettle/vision/calibration/board.hpp"
+#include "fettle/vision/calibration/gray_code.hpp"
 #include "fettle/vision/calibration/hand_eye.hpp"
 
 namespace fettle::test {
@@ -90,6 +91,54 @@ std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTr
 std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTruth& truth, int n, double sigma_mm,
                                                                  double sigma_deg, std::uint64_t seed,
                                                                  bool single_axis = false);
+
+/// A camera and a projector looking at a planar chessboard (Gray-code calibration tests).
+/// Grey value of a camera pixel = albedo x (ambient + projector x pattern), area-averaged over
+/// supersample x supersample points of the pixel, then blurred (optics) and noisy (sensor).
+struct StructuredLightScene {
+  config::CameraIntrinsics camera;
+  config::CameraIntrinsics projector;
+  Transform T_camera_projector = Transform::Identity();
+  vision::calibration::BoardSpec board{9, 6, 20.0};
+  Transform T_camera_board = Transform::Identity();
+  double white_albedo = 0.9;
+  double black_albedo = 0.12;
+  double ambient_grey = 12.0;     ///< room light on an albedo-1 surface
+  double projector_grey = 220.0;  ///< projector white on an albedo-1 surface
+  double background_grey = 3.0;   ///< beyond the board (far away, not lit)
+  int supersample = 3;            ///< samples per pixel axis; 1 = the pixel centre only
+  double blur_sigma_px = 0.0;
+  double noise_grey = 0.0;
+  unsigned seed = 1;
+  /// A disc on the board (board frame x, y in mm) that the projector's light does not reach
+  /// (an object between projector and board); radius 0 = none.
+  Eigen::Vector2d shadow_centre_mm = Eigen::Vector2d::Zero();
+  double shadow_radius_mm = 0.0;
+  /// A dark stain on the board (albedo stain_albedo); radius 0 = none.
+  Eigen::Vector2d stain_centre_mm = Eigen::Vector2d::Zero();
+  double stain_radius_mm = 0.0;
+  double stain_albedo = 0.02;
+};
+
+struct StructuredLightRender {
+  std::vector<vision::calibration::GrayImage> images;  ///< GrayCodeLayout order, named as the layout
+  /// The projector pixel whose light falls on the board plane at each camera pixel centre
+  /// (CV_32SC1; whether the board, the shadow or nothing is there; beyond the projector's image
+  /// too, where it would be if the image went on).
+  cv::Mat true_column, true_row;
+  /// 255 where the pixel centre sees the board lit by the projector (CV_8UC1).
+  cv::Mat lit;
+  /// 255 where the pixel centre is in the shadow or on the stain (CV_8UC1).
+  cv::Mat shadow_or_stain;
+};
+
+/// Renders what the camera sees of the board under each Gray-code pattern (the library's
+/// gray_code_patterns(layout), looked up per projector pixel).
+StructuredLightRender render_structured_light(const StructuredLightScene& scene,
+                                              const vision::calibration::GrayCodeLayout& layout);
+
+/// Projects a point given in a camera's frame (mm) to its pixel, with the camera's distortion.
+Eigen::Vector2d project_point(const config::CameraIntrinsics& k, const Vec3& p_mm);
 
 /// Rotation angle (deg) and translation distance (mm) between two transforms.
 double rotation_error_deg(const Transform& a, const Transform& b);
