@@ -1,4 +1,5 @@
-// fettle calibrate intrinsics | hand-eye | show  (docs/calibration.md)
+// fettle calibrate intrinsics | projector | projector-patterns | hand-eye | show  (docs/calibration.md)
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -14,11 +15,13 @@
 #include <thread>
 #include <vector>
 
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_types.h>
 #include <boost/asio/executor_work_guard.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/post.hpp>
-#include <pcl/io/pcd_io.h>
-#include <pcl/point_types.h>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 #include "fettle/config/calibration.hpp"
 #include "fettle/config/load.hpp"
@@ -27,7 +30,9 @@
 #include "fettle/drivers/camera.hpp"
 #include "fettle/drivers/robot_link.hpp"
 #include "fettle/vision/calibration/board.hpp"
+#include "fettle/vision/calibration/gray_code.hpp"
 #include "fettle/vision/calibration/hand_eye.hpp"
+#include "fettle/vision/calibration/stereo.hpp"
 
 namespace {
 
@@ -55,8 +60,8 @@ void print_transform(const char* name, const Transform& T) {
   const Eigen::AngleAxisd aa(T.rotation());
   std::cout << name << ": position [" << fmt(p.position_mm.x(), 3) << ", " << fmt(p.position_mm.y(), 3) << ", "
             << fmt(p.position_mm.z(), 3) << "] mm, rotation " << fmt(fettle::rad_to_deg(aa.angle()), 4)
-            << " deg about [" << fmt(aa.axis().x(), 4) << ", " << fmt(aa.axis().y(), 4) << ", "
-            << fmt(aa.axis().z(), 4) << "]\n";
+            << " deg about [" << fmt(aa.axis().x(), 4) << ", " << fmt(aa.axis().y(), 4) << ", " << fmt(aa.axis().z(), 4)
+            << "]\n";
 }
 
 // ---- input files ------------------------------------------------------------------------
@@ -206,6 +211,145 @@ int run_intrinsics(const IntrinsicsArgs& a) {
   return fettle::exit_code::ok;
 }
 
+// ---- camera-projector (Gray code) ----------------------------------------------------------
+
+struct ProjectorArgs {
+  fs::path images, camera_intrinsics, out;
+  std::string board, projector, id, note;
+  std::string board_type = "chessboard";
+  std::string dictionary = "DICT_5X5_100";
+  double square_mm = 0.0;
+  double marker_mm = 0.0;
+  double min_contrast_grey = 15.0;
+  std::size_t min_views = 3;
+};
+
+cal::GrayCodeLayout parse_projector_size(const std::string& text) {
+  const auto x = text.find('x');
+  int w = 0, h = 0;
+  try {
+    if (x == std::string::npos) throw std::invalid_argument("no x");
+    std::size_t used_w = 0, used_h = 0;
+    w = std::stoi(text.substr(0, x), &used_w);
+    h = std::stoi(text.substr(x + 1), &used_h);
+    if (used_w != x || used_h != text.size() - x - 1) throw std::invalid_argument("trailing");
+  } catch (const std::exception&) {
+    throw UserError("--projector \"" + text + "\": expected WIDTHxHEIGHT in projector pixels, e.g. 1280x800");
+  }
+  return cal::GrayCodeLayout::for_projector(w, h);
+}
+
+/// The pattern images of one board pose, in GrayCodeLayout order, found by name (any image
+/// extension) in `dir`.
+std::vector<cal::GrayImage> load_pattern_images(const fs::path& dir, const cal::GrayCodeLayout& layout) {
+  std::map<std::string, fs::path> by_stem;
+  for (const auto& f : cal::list_images(dir)) by_stem.emplace(f.stem().string(), f);
+  std::vector<cal::GrayImage> images;
+  for (const auto& name : layout.names()) {
+    const auto it = by_stem.find(name);
+    if (it == by_stem.end())
+      throw UserError(
+          dir.string() + ": no image named " + name + " (.png, .bmp, .tif, .pgm, .jpg); a " +
+          std::to_string(layout.width_px) + "x" + std::to_string(layout.height_px) + " px projector's sequence has " +
+          std::to_string(layout.image_count()) + " images: white, black, col_00, col_00_inv ... " +
+          layout.names()[1 + 2 * static_cast<std::size_t>(layout.column_bits)] + ", row_00, row_00_inv ... " +
+          layout.names().back() + " (`fettle calibrate projector-patterns` writes them)");
+    auto img = cal::load_gray_image(it->second);
+    if (!img) throw UserError(img.error().message);
+    img->name = it->second.string();
+    images.push_back(std::move(*img));
+  }
+  return images;
+}
+
+int run_projector(const ProjectorArgs& a) {
+  const auto board = board_from(a.board_type, a.board, a.square_mm, a.marker_mm, a.dictionary);
+  const auto layout = parse_projector_size(a.projector);
+  const auto base = fettle::config::load_calibration(a.camera_intrinsics);
+  if (!base.intrinsics)
+    throw UserError(a.camera_intrinsics.string() +
+                    ": has no [intrinsics] section; run `fettle calibrate intrinsics` first");
+  if (!fs::is_directory(a.images)) throw UserError(a.images.string() + ": not a directory");
+  std::vector<fs::path> poses;
+  for (const auto& e : fs::directory_iterator(a.images))
+    if (e.is_directory()) poses.push_back(e.path());
+  std::sort(poses.begin(), poses.end());
+  if (poses.empty())
+    throw UserError(a.images.string() + ": no sub-directories; put the " + std::to_string(layout.image_count()) +
+                    " pattern images of each board pose in a directory of its own (pose01, pose02, ...)");
+  std::cerr << "board: " << cal::describe(board) << "; projector " << layout.width_px << "x" << layout.height_px
+            << " px, " << layout.image_count() << " images per pose\n";
+  cal::StructuredLightOptions o;
+  o.decode.min_contrast_grey = a.min_contrast_grey;
+  std::vector<cal::StereoView> views;
+  std::vector<std::string> skipped;
+  for (std::size_t i = 0; i < poses.size(); ++i) {
+    std::cerr << "pose " << i + 1 << "/" << poses.size() << ": " << poses[i].string() << "\n";
+    const auto images = load_pattern_images(poses[i], layout);
+    if (images[0].width_px != base.intrinsics->width_px || images[0].height_px != base.intrinsics->height_px)
+      throw UserError(images[0].name + ": " + std::to_string(images[0].width_px) + "x" +
+                      std::to_string(images[0].height_px) + " px, but the camera intrinsics in " +
+                      a.camera_intrinsics.string() + " are for " + std::to_string(base.intrinsics->width_px) + "x" +
+                      std::to_string(base.intrinsics->height_px) + " px images");
+    auto v = cal::decode_stereo_view(images, board, layout, o);
+    if (!v) {
+      // Wrong sizes or counts are the operator's to fix; a pose the decode cannot use is skipped.
+      if (v.error().code == "calibration.image_size" || v.error().code == "calibration.pattern_count")
+        throw UserError(poses[i].string() + ": " + v.error().message);
+      std::cout << "  SKIPPED  " << poses[i].filename().string() << "  " << v.error().message << "\n";
+      skipped.push_back(poses[i].filename().string() + ": " + v.error().message);
+      continue;
+    }
+    std::cout << "  used     " << poses[i].filename().string() << "  " << v->corners_decoded << " of "
+              << v->corners_total << " corners decoded, " << v->map.valid_pixels << " pixels decoded ("
+              << v->map.low_contrast_pixels << " low contrast, " << v->map.undecided_pixels << " undecided)\n";
+    views.push_back(std::move(v->view));
+  }
+  if (views.size() < a.min_views) {
+    std::string why;
+    for (const auto& s : skipped) why += "\n  " + s;
+    throw UserError("only " + std::to_string(views.size()) + " of " + std::to_string(poses.size()) +
+                    " board poses usable, need " + std::to_string(a.min_views) + why);
+  }
+  auto kp = cal::calibrate_projector_intrinsics(views, layout.width_px, layout.height_px);
+  if (!kp) throw UserError(kp.error().message);
+  std::cout << "projector intrinsics (inverse camera, " << views.size() << " views): fx " << fmt(kp->fx_px, 2)
+            << "  fy " << fmt(kp->fy_px, 2) << "  cx " << fmt(kp->cx_px, 2) << "  cy " << fmt(kp->cy_px, 2)
+            << " px, distortion";
+  for (const double d : kp->distortion) std::cout << " " << fmt(d, 6);
+  std::cout << ", rms " << fmt(kp->rms_px, 3) << " px\n";
+  cal::StereoOptions so;
+  so.min_views = a.min_views;
+  auto r = cal::calibrate_camera_projector(views, *base.intrinsics, *kp, so);
+  if (!r) throw UserError(r.error().message);
+  std::cout << "stereo rms " << fmt(r->rms_px, 3) << " px\n";
+  print_transform("T_camera_projector", r->T_camera_projector);
+  auto file = new_file(a.id, a.note);
+  file.intrinsics = base.intrinsics;
+  file.T_base_camera = base.T_base_camera;
+  file.T_flange_board = base.T_flange_board;
+  file.hand_eye = base.hand_eye;
+  file.T_camera_projector = r->T_camera_projector;
+  file.stereo_rms_px = r->rms_px;
+  fettle::config::write_calibration(a.out, file);
+  std::cout << "wrote " << a.out.string() << " (id " << file.id << ")\n";
+  return fettle::exit_code::ok;
+}
+
+int run_projector_patterns(const std::string& projector, const fs::path& out) {
+  const auto layout = parse_projector_size(projector);
+  fs::create_directories(out);
+  const auto patterns = cal::gray_code_patterns(layout);
+  for (const auto& p : patterns) {
+    const cv::Mat m(p.height_px, p.width_px, CV_8UC1, const_cast<std::uint8_t*>(p.pixels.data()));  // NOLINT
+    const fs::path file = out / (p.name + ".png");
+    if (!cv::imwrite(file.string(), m)) throw UserError(file.string() + ": cannot be written");
+  }
+  std::cout << "wrote " << patterns.size() << " pattern images (" << layout.width_px << "x" << layout.height_px
+            << " px) to " << out.string() << "\n";
+  return fettle::exit_code::ok;
+}
+
 // ---- hand-eye ---------------------------------------------------------------------------
 
 struct HandEyeArgs {
@@ -271,8 +415,8 @@ int run_hand_eye(const HandEyeArgs& a) {
       const auto fit = cal::fit_sphere(read_cloud(cloud_file), fo);
       if (!fit) throw UserError(cloud_file.string() + ": " + fit.error().message);
       std::cerr << "  centre [" << fmt(fit->center_mm.x(), 3) << ", " << fmt(fit->center_mm.y(), 3) << ", "
-                << fmt(fit->center_mm.z(), 3) << "] mm, radius " << fmt(fit->radius_mm, 3) << " mm, "
-                << fit->inliers << " points, rms " << fmt(fit->rms_mm, 3) << " mm\n";
+                << fmt(fit->center_mm.z(), 3) << "] mm, radius " << fmt(fit->radius_mm, 3) << " mm, " << fit->inliers
+                << " points, rms " << fmt(fit->rms_mm, 3) << " mm\n";
       samples.push_back(cal::SphereSample{rows[i].name, rows[i].position_mm, fit->center_mm});
     }
     auto r = cal::calibrate_hand_eye_sphere(samples, o);
@@ -295,8 +439,9 @@ int run_hand_eye(const HandEyeArgs& a) {
       }
     } else {
       if (!file.intrinsics)
-        throw UserError("--images needs the camera intrinsics: give --calibration FILE (from `fettle calibrate "
-                        "intrinsics`)");
+        throw UserError(
+            "--images needs the camera intrinsics: give --calibration FILE (from `fettle calibrate "
+            "intrinsics`)");
       const auto board = board_from(a.board_type, a.board, a.square_mm, a.marker_mm, a.dictionary);
       cal::DetectOptions d;
       d.max_edge_width_px = a.max_edge_width_px;
@@ -398,8 +543,8 @@ class LiveRobot {
     auto fut = p->get_future();
     boost::asio::post(io_, [start, p] { start([p](fettle::Status s) { p->set_value(std::move(s)); }); });
     if (fut.wait_for(std::chrono::milliseconds(timeout_ms)) != std::future_status::ready)
-      return fettle::Error{"robot.timeout", "no answer from the robot at " + where() + " within " +
-                                                std::to_string(timeout_ms) + " ms"};
+      return fettle::Error{"robot.timeout",
+                           "no answer from the robot at " + where() + " within " + std::to_string(timeout_ms) + " ms"};
     return fut.get();
   }
 
@@ -447,26 +592,29 @@ std::vector<fettle::config::CalibrationPose> auto_poses(int n, const Transform& 
 int run_hand_eye_live(const HandEyeArgs& a) {
   if (a.config.empty()) throw UserError("--live needs --config CELL.toml (the robot and camera to use)");
   if (a.out.empty()) throw UserError("--out FILE is required");
-  if ((a.auto_poses > 0) == !a.poses.empty())
-    throw UserError("--live needs exactly one of --poses FILE or --auto N");
+  if ((a.auto_poses > 0) == !a.poses.empty()) throw UserError("--live needs exactly one of --poses FILE or --auto N");
   if (!a.images.empty() || !a.board_poses.empty() || !a.clouds.empty() || !a.robot_poses.empty())
-    throw UserError("--live records its own poses and scans: leave out --robot-poses, --images, --board-poses, "
-                    "--clouds");
+    throw UserError(
+        "--live records its own poses and scans: leave out --robot-poses, --images, --board-poses, "
+        "--clouds");
   if (!a.board.empty())
-    throw UserError("--live uses the sphere method: the cell's 3D camera delivers range maps, in which a board "
-                    "cannot be found. Hold a sphere in the tool (--sphere-radius-mm), or record board images "
-                    "yourself and use --robot-poses with --images");
+    throw UserError(
+        "--live uses the sphere method: the cell's 3D camera delivers range maps, in which a board "
+        "cannot be found. Hold a sphere in the tool (--sphere-radius-mm), or record board images "
+        "yourself and use --robot-poses with --images");
   if (!(a.sphere_radius_mm > 0.0)) throw UserError("--live needs --sphere-radius-mm R (the sphere held by the robot)");
   if (!(a.speed_mm_s > 0.0)) throw UserError("--speed-mm-s must be above 0");
 
   const auto cell = fettle::config::load_cell(a.config);
   if (cell.calibration.file.empty())
-    throw UserError(a.config.string() + ": [calibration] file is needed: --live finds the sphere near where a nominal "
-                                        "T_base_camera (e.g. from the cell drawing) puts it");
+    throw UserError(a.config.string() +
+                    ": [calibration] file is needed: --live finds the sphere near where a nominal "
+                    "T_base_camera (e.g. from the cell drawing) puts it");
   const auto nominal = fettle::config::load_calibration(cell.calibration.file);
   if (!nominal.T_base_camera)
-    throw UserError(cell.calibration.file.string() + ": has no [T_base_camera]; --live needs a nominal one (from the "
-                                                     "cell drawing, within --search-radius-mm of the truth)");
+    throw UserError(cell.calibration.file.string() +
+                    ": has no [T_base_camera]; --live needs a nominal one (from the "
+                    "cell drawing, within --search-radius-mm of the truth)");
   const Transform T_nominal = *nominal.T_base_camera;
   if (a.speed_mm_s > cell.safety.max_speed_mm_s)
     throw UserError("--speed-mm-s " + fmt(a.speed_mm_s, 1) + " exceeds the cell's [safety] max_speed_mm_s " +
@@ -506,8 +654,8 @@ int run_hand_eye_live(const HandEyeArgs& a) {
   for (std::size_t i = 0; i < poses.size(); ++i) {
     const auto& p = poses[i];
     const Vec3& tcp = p.T_base_tool.position_mm;
-    std::cerr << "pose " << i + 1 << "/" << poses.size() << " " << p.name << ": moving to [" << fmt(tcp.x(), 1)
-              << ", " << fmt(tcp.y(), 1) << ", " << fmt(tcp.z(), 1) << "] mm\n";
+    std::cerr << "pose " << i + 1 << "/" << poses.size() << " " << p.name << ": moving to [" << fmt(tcp.x(), 1) << ", "
+              << fmt(tcp.y(), 1) << ", " << fmt(tcp.z(), 1) << "] mm\n";
     if (auto s = robot.move_to(p.T_base_tool, a.speed_mm_s); !s)
       throw fettle::DeviceError("robot at " + robot.where() + ": moving to pose \"" + p.name +
                                 "\" failed: " + s.error().message + " (" + s.error().code + ")");
@@ -574,7 +722,8 @@ int run_show(const fs::path& path) {
 }
 
 FETTLE_COMMAND("calibrate", [](CLI::App& app, const fettle::cli::Common&) {
-  auto* c = app.add_subcommand("calibrate", "Camera intrinsics, hand-eye calibration (docs/calibration.md)");
+  auto* c = app.add_subcommand("calibrate",
+                               "Camera intrinsics, camera-projector, hand-eye calibration (docs/calibration.md)");
   c->require_subcommand(1);
 
   auto ia = std::make_shared<IntrinsicsArgs>();
@@ -594,6 +743,35 @@ FETTLE_COMMAND("calibrate", [](CLI::App& app, const fettle::cli::Common&) {
       ->capture_default_str();
   in->add_flag("--k3", ia->k3, "Also estimate the k3 distortion coefficient (wide-angle lenses)");
 
+  auto pa = std::make_shared<ProjectorArgs>();
+  auto* pr = c->add_subcommand("projector", "Camera-projector extrinsics (T_camera_projector) from Gray-code images");
+  pr->add_option("--images", pa->images,
+                 "Directory with one sub-directory per board pose, each holding the pattern images white, black, "
+                 "col_00, col_00_inv, ..., row_NN_inv")
+      ->required();
+  pr->add_option("--board", pa->board, "Chessboard: inner corners COLSxROWS, e.g. 9x6; ChArUco: squares")->required();
+  pr->add_option("--square-mm", pa->square_mm, "Square size in mm")->required();
+  pr->add_option("--board-type", pa->board_type, "chessboard or charuco")->capture_default_str();
+  pr->add_option("--marker-mm", pa->marker_mm, "ChArUco marker size in mm");
+  pr->add_option("--dictionary", pa->dictionary, "ChArUco marker dictionary")->capture_default_str();
+  pr->add_option("--projector", pa->projector, "Projector resolution WIDTHxHEIGHT, e.g. 1280x800")->required();
+  pr->add_option("--camera-intrinsics", pa->camera_intrinsics,
+                 "Calibration file with the camera's [intrinsics] (kept in the output with its other sections)")
+      ->required();
+  pr->add_option("--out", pa->out, "Calibration file to write")->required();
+  pr->add_option("--id", pa->id, "Calibration id (default: cal-<date>)");
+  pr->add_option("--note", pa->note, "Free text stored in the file");
+  pr->add_option("--min-contrast-grey", pa->min_contrast_grey,
+                 "Pixels whose white - black difference is smaller are not decoded (shadow, dark spots)")
+      ->capture_default_str();
+  pr->add_option("--min-views", pa->min_views, "Fewest usable board poses accepted")->capture_default_str();
+
+  auto patterns_size = std::make_shared<std::string>();
+  auto patterns_out = std::make_shared<fs::path>();
+  auto* pp = c->add_subcommand("projector-patterns", "Write the Gray-code pattern images for the projector");
+  pp->add_option("--projector", *patterns_size, "Projector resolution WIDTHxHEIGHT, e.g. 1280x800")->required();
+  pp->add_option("--out", *patterns_out, "Directory to write white.png, black.png, col_00.png, ...")->required();
+
   auto ha = std::make_shared<HandEyeArgs>();
   auto* he = c->add_subcommand("hand-eye", "Eye-to-hand calibration: T_base_camera (board or sphere on the flange)");
   he->add_flag("--live", ha->live,
@@ -609,7 +787,8 @@ FETTLE_COMMAND("calibrate", [](CLI::App& app, const fettle::cli::Common&) {
       ->capture_default_str();
   he->add_option("--auto-min-height-mm", ha->auto_min_height_mm,
                  "Lowest sphere height above the base for --auto (default: [safety] safe_height_mm)");
-  he->add_option("--auto-max-height-mm", ha->auto_max_height_mm, "Highest sphere height for --auto (default: min + 150)");
+  he->add_option("--auto-max-height-mm", ha->auto_max_height_mm,
+                 "Highest sphere height for --auto (default: min + 150)");
   he->add_option("--robot-poses", ha->robot_poses,
                  "CSV name,x_mm,y_mm,z_mm,qw,qx,qy,qz of the flange in the base frame (sphere: TCP x,y,z)");
   he->add_option("--images", ha->images, "Directory with the board image of every pose (named as in the CSV)");
@@ -634,6 +813,8 @@ FETTLE_COMMAND("calibrate", [](CLI::App& app, const fettle::cli::Common&) {
 
   return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{
       {in, [ia] { return run_intrinsics(*ia); }},
+      {pr, [pa] { return run_projector(*pa); }},
+      {pp, [patterns_size, patterns_out] { return run_projector_patterns(*patterns_size, *patterns_out); }},
       {he, [ha] { return run_hand_eye(*ha); }},
       {show, [file] { return run_show(*file); }}};
 });

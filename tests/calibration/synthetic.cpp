@@ -397,18 +397,85 @@ StructuredLightRender render_structured_light(const StructuredLightScene& s,
         acc[m].at<float>(v, u) = x;
       }
     }
+  // Blur and noise only where the board is (the rest is a flat background nothing decodes).
   cv::RNG rng(s.seed);
+  const cv::Rect roi =
+      u_hi < u_lo || v_hi < v_lo ? cv::Rect(0, 0, 1, 1) : cv::Rect(u_lo, v_lo, u_hi - u_lo + 1, v_hi - v_lo + 1);
   for (std::size_t m = 0; m < n_img; ++m) {
     cv::Mat img = acc[m];
-    if (s.blur_sigma_px > 0) cv::GaussianBlur(img, img, cv::Size(0, 0), s.blur_sigma_px);
+    cv::Mat part = img(roi);
+    if (s.blur_sigma_px > 0) cv::GaussianBlur(part, part, cv::Size(0, 0), s.blur_sigma_px);
     if (s.noise_grey > 0) {
-      cv::Mat nz(img.size(), CV_32FC1);
+      cv::Mat nz(part.size(), CV_32FC1);
       rng.fill(nz, cv::RNG::NORMAL, 0.0, s.noise_grey);
-      img += nz;
+      part += nz;
     }
     cv::Mat out8;
     img.convertTo(out8, CV_8UC1);
     out.images.push_back(to_gray_image(out8, names[m]));
+  }
+  return out;
+}
+
+config::CameraIntrinsics structured_light_projector() {
+  config::CameraIntrinsics k;
+  k.width_px = 1280;
+  k.height_px = 800;
+  k.fx_px = 1400.0;
+  k.fy_px = 1400.0;
+  k.cx_px = 640.0;
+  k.cy_px = 560.0;  // projecting somewhat upwards, as projectors do
+  k.distortion = {0.02, 0.0, 0.0, 0.0, 0.0};
+  return k;
+}
+
+/// The projector 180 mm to the right of the camera, toed in by 12 deg.
+Transform structured_light_T_camera_projector() {
+  Transform T = Transform::Identity();
+  T.linear() = (Eigen::AngleAxisd(deg_to_rad(-12.0), Vec3::UnitY()) * Eigen::AngleAxisd(deg_to_rad(1.0), Vec3::UnitX()))
+                   .toRotationMatrix();
+  T.translation() = Vec3(180.0, 5.0, 10.0);
+  return T;
+}
+
+StructuredLightScene structured_light_scene() {
+  StructuredLightScene s;
+  s.camera = test_camera();
+  s.projector = structured_light_projector();
+  s.T_camera_projector = structured_light_T_camera_projector();
+  return s;
+}
+
+namespace {
+
+/// True when the whole board (with its white margin) and a few pixels around it is inside
+/// both the camera's and the projector's image.
+bool board_fits(const StructuredLightScene& s, const Transform& T_camera_board) {
+  const double S = s.board.square_mm;
+  const Transform T_projector_camera = s.T_camera_projector.inverse();
+  for (const double x : {-2.5 * S, (s.board.cols + 1.5) * S})
+    for (const double y : {-2.5 * S, (s.board.rows + 1.5) * S}) {
+      const Vec3 p = T_camera_board * Vec3(x, y, 0.0);
+      const Eigen::Vector2d c = project_point(s.camera, p), q = project_point(s.projector, T_projector_camera * p);
+      if (c.x() < 10 || c.y() < 10 || c.x() > s.camera.width_px - 10 || c.y() > s.camera.height_px - 10) return false;
+      if (q.x() < 5 || q.y() < 5 || q.x() > s.projector.width_px - 5 || q.y() > s.projector.height_px - 5) return false;
+    }
+  return true;
+}
+
+}  // namespace
+
+/// `n` board poses 430-570 mm from the camera, tilted up to 30 deg about two axes and turned
+/// up to 30 deg, that fit both images.
+std::vector<Transform> structured_light_board_poses(const StructuredLightScene& s, int n, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Transform> out;
+  for (int tries = 0; tries < 2000 && static_cast<int>(out.size()) < n; ++tries) {
+    const Transform T =
+        test::board_pose_facing_camera(s.board, 500 + 70 * u(rng), 40 + 50 * u(rng), -20 + 40 * u(rng),
+                                       deg_to_rad(30 * u(rng)), deg_to_rad(30 * u(rng)), deg_to_rad(30 * u(rng)));
+    if (board_fits(s, T)) out.push_back(T);
   }
   return out;
 }

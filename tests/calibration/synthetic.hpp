@@ -137,6 +137,16 @@ struct StructuredLightRender {
 StructuredLightRender render_structured_light(const StructuredLightScene& scene,
                                               const vision::calibration::GrayCodeLayout& layout);
 
+/// The Gray-code tests' setup: the test camera and a 1280 x 800 px projector (f = 1400 px,
+/// principal point (640, 560), k1 = 0.02) 180 mm to the camera's right, toed in by 12 deg.
+config::CameraIntrinsics structured_light_projector();
+Transform structured_light_T_camera_projector();
+StructuredLightScene structured_light_scene();
+/// `n` board poses 430-570 mm from the camera, tilted up to 30 deg about two axes and turned up
+/// to 30 deg, with the whole board (and its margin) inside both the camera's and the
+/// projector's image.
+std::vector<Transform> structured_light_board_poses(const StructuredLightScene& scene, int n, std::uint64_t seed);
+
 /// Projects a point given in a camera's frame (mm) to its pixel, with the camera's distortion.
 Eigen::Vector2d project_point(const config::CameraIntrinsics& k, const Vec3& p_mm);
 

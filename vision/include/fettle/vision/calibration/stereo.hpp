@@ -32,6 +32,13 @@ struct StereoResult {
   double rms_px = 0.0;
 };
 
+/// The projector's intrinsics as an inverse camera (Zhang's method, cv::calibrateCamera, k3 = 0)
+/// from the board points and their projector pixels of every view: the initial projector
+/// intrinsics for calibrate_camera_projector when none are known. rms_px and views are set.
+/// Errors: "calibration.too_few_views" (fewer than 3 views), "calibration.bad_views".
+Result<config::CameraIntrinsics> calibrate_projector_intrinsics(const std::vector<StereoView>& views, int width_px,
+                                                                int height_px);
+
 /// cv::stereoCalibrate from the correspondences; `camera` and `projector` are the known (or
 /// initial) intrinsics. Errors: "calibration.too_few_views", "calibration.bad_views".
 Result<StereoResult> calibrate_camera_projector(const std::vector<StereoView>& views,
