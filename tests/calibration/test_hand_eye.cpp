@@ -118,7 +118,8 @@ Percentiles survey(const test::PoseNoise& noise) {
     o.robot_noise_deg = noise.robot_sigma_deg;
     o.board_noise_mm = noise.board_sigma_mm;
     o.board_noise_deg = noise.board_sigma_deg;
-    const auto r = calibrate_hand_eye_board(test::hand_eye_samples(truth, 15, test::recommended_design(), noise, seed), o);
+    const auto r =
+        calibrate_hand_eye_board(test::hand_eye_samples(truth, 15, test::recommended_design(), noise, seed), o);
     EXPECT_TRUE(r.ok()) << "seed " << seed << ": " << r.error().message;
     if (!r.ok()) continue;
     const Errors e = errors(r->T_base_camera, truth.T_base_camera);
@@ -139,25 +140,223 @@ Percentiles survey(const test::PoseNoise& noise) {
 // recommended design, 95 % map the working volume within 0.1 mm and the rotation within 0.05 deg.
 TEST(HandEyeBoard, NinetyFivePercentOfRecommendedPoseSetsMeetTheTarget) {
   const auto p = survey(test::PoseNoise::rms_magnitude(0.05, 0.05));
-  std::printf("RMS 0.05 mm / 0.05 deg, seeds 1-100: working volume median %.3f mm, 95%% %.3f mm; rotation 95%% "
-              "%.4f deg; camera origin 95%% %.3f mm\n",
-              p.volume_median_mm, p.volume_p95_mm, p.deg_p95, p.origin_p95_mm);
+  std::printf(
+      "RMS 0.05 mm / 0.05 deg, seeds 1-100: working volume median %.3f mm, 95%% %.3f mm; rotation 95%% "
+      "%.4f deg; camera origin 95%% %.3f mm\n",
+      p.volume_median_mm, p.volume_p95_mm, p.deg_p95, p.origin_p95_mm);
   EXPECT_LT(p.volume_p95_mm, 0.1);
   EXPECT_LT(p.deg_p95, 0.05);
 }
 
 // The same with 0.05 mm / 0.05 deg PER AXIS (3D RMS 0.087 mm / 0.087 deg, on both sides): the
-// rotation target is met, the 0.1 mm one is not reliably reachable with 15 poses at this noise
-// (docs/calibration.md: record more poses). The measured values with a margin keep a
-// regression visible.
+// rotation target is met, the 0.1 mm one is not reachable with 15 poses at this noise: the
+// Cramer-Rao bound of this design is 0.150 mm at 95 % and our estimator reaches it (the two
+// tests after the next; measured here 0.132 mm, these 100 pose sets are a slightly lucky draw).
+// docs/calibration.md: record ~32 poses. The measured values with a margin keep a regression
+// visible.
 TEST(HandEyeBoard, PerAxisNoiseOfTheSameSizeGivesTheMeasuredAccuracy) {
   const auto p = survey(test::PoseNoise::per_axis(0.05, 0.05));
-  std::printf("0.05 mm / 0.05 deg per axis, seeds 1-100: working volume median %.3f mm, 95%% %.3f mm; rotation "
-              "95%% %.4f deg; camera origin 95%% %.3f mm\n",
-              p.volume_median_mm, p.volume_p95_mm, p.deg_p95, p.origin_p95_mm);
+  std::printf(
+      "0.05 mm / 0.05 deg per axis, seeds 1-100: working volume median %.3f mm, 95%% %.3f mm; rotation "
+      "95%% %.4f deg; camera origin 95%% %.3f mm\n",
+      p.volume_median_mm, p.volume_p95_mm, p.deg_p95, p.origin_p95_mm);
   EXPECT_LT(p.volume_median_mm, 0.12);
   EXPECT_LT(p.volume_p95_mm, 0.2);
   EXPECT_LT(p.deg_p95, 0.05);
+}
+
+namespace {
+
+/// A small motion [rotation vector (rad); translation (mm)] as a transform.
+Transform small_motion(const Eigen::Matrix<double, 6, 1>& d) {
+  Transform T = Transform::Identity();
+  const Vec3 w = d.head<3>();
+  if (w.norm() > 0) T.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
+  T.translation() = d.tail<3>();
+  return T;
+}
+
+Eigen::Matrix<double, 6, 1> log6(const Transform& T) {
+  const Eigen::AngleAxisd aa(T.rotation());
+  Eigen::Matrix<double, 6, 1> r;
+  r << aa.angle() * aa.axis(), T.translation();
+  return r;
+}
+
+/// The Cramer-Rao bound of T_base_camera for a pose set: the covariance no unbiased estimator
+/// can beat, from the same measurement model as hand_eye_samples (every robot pose A_i and
+/// board pose B_i right-multiplied by an independent small motion with the given per-axis
+/// sigmas), computed independently of the library (numerical Jacobians of the pose mismatch
+/// (A X)^-1 Y B with respect to X, Y and the noise). Returns the 6x6 covariance of the
+/// perturbation d of T_base_camera = Y * small_motion(d).
+Eigen::Matrix<double, 6, 6> cramer_rao_T_base_camera(const std::vector<HandEyeSample>& exact,
+                                                     const test::HandEyeTruth& truth, const test::PoseNoise& nz) {
+  using V6 = Eigen::Matrix<double, 6, 1>;
+  Eigen::Matrix<double, 12, 1> var;
+  const double rr = deg_to_rad(nz.robot_sigma_deg), br = deg_to_rad(nz.board_sigma_deg);
+  var << V6::Zero(), V6::Zero();
+  var.segment<3>(0).setConstant(rr * rr);
+  var.segment<3>(3).setConstant(nz.robot_sigma_mm * nz.robot_sigma_mm);
+  var.segment<3>(6).setConstant(br * br);
+  var.segment<3>(9).setConstant(nz.board_sigma_mm * nz.board_sigma_mm);
+  Eigen::Matrix<double, 12, 12> info = Eigen::Matrix<double, 12, 12>::Zero();
+  for (const auto& s : exact) {
+    // r(theta, noise) = log((A N_A X dX)^-1 Y dY B N_B)
+    const auto r = [&](const Eigen::Matrix<double, 12, 1>& th, const Eigen::Matrix<double, 12, 1>& n) {
+      const Transform A = s.T_base_flange * small_motion(n.head<6>());
+      const Transform B = s.T_camera_board * small_motion(n.tail<6>());
+      const Transform X = truth.T_flange_board * small_motion(th.head<6>());
+      const Transform Y = truth.T_base_camera * small_motion(th.tail<6>());
+      return log6((A * X).inverse() * Y * B);
+    };
+    const Eigen::Matrix<double, 12, 1> zero = Eigen::Matrix<double, 12, 1>::Zero();
+    Eigen::Matrix<double, 6, 12> J, G;
+    for (int k = 0; k < 12; ++k) {
+      Eigen::Matrix<double, 12, 1> d = zero;
+      d(k) = 1e-6;
+      J.col(k) = (r(d, zero) - r(-d, zero)) / 2e-6;
+      G.col(k) = (r(zero, d) - r(zero, -d)) / 2e-6;
+    }
+    const Eigen::Matrix<double, 6, 6> cov = G * var.asDiagonal() * G.transpose();
+    info += J.transpose() * cov.inverse() * J;
+  }
+  const Eigen::Matrix<double, 12, 12> C = info.inverse();
+  return C.block<6, 6>(6, 6);
+}
+
+struct Bound {
+  double volume_median_mm, volume_p95_mm, deg_p95;
+};
+
+/// Draws errors of an estimator that reaches the bound C: the working-volume error (largest
+/// over the points errors() checks) and the rotation error.
+void draw_errors(const Eigen::Matrix<double, 6, 6>& C, int draws, std::mt19937_64& rng, std::vector<double>& vol,
+                 std::vector<double>& deg) {
+  const Eigen::Matrix<double, 6, 6> L = Eigen::LLT<Eigen::Matrix<double, 6, 6>>(C).matrixL();
+  std::normal_distribution<double> n01;
+  for (int i = 0; i < draws; ++i) {
+    Eigen::Matrix<double, 6, 1> z;
+    for (int k = 0; k < 6; ++k) z(k) = n01(rng);
+    const Eigen::Matrix<double, 6, 1> d = L * z;
+    double worst = 0.0;
+    for (const double pz : {420.0, 510.0, 600.0})
+      for (const double px : {-150.0, 0.0, 150.0})
+        for (const double py : {-100.0, 0.0, 100.0})
+          worst = std::max(worst, (d.head<3>().cross(Vec3(px, py, pz)) + d.tail<3>()).norm());
+    vol.push_back(worst);
+    deg.push_back(rad_to_deg(d.head<3>().norm()));
+  }
+}
+
+double percentile(std::vector<double> v, double f) {
+  std::sort(v.begin(), v.end());
+  return v[static_cast<std::size_t>(f * static_cast<double>(v.size() - 1))];
+}
+
+/// The bound's error distribution pooled over the pose sets of seeds 1-100 of a design (as
+/// survey() draws them), 200 draws each.
+Bound design_bound(const test::HandEyeTruth& truth, const test::PoseDesign& design, const test::PoseNoise& nz,
+                   int poses) {
+  std::vector<double> vol, deg;
+  std::mt19937_64 rng(99);
+  for (std::uint64_t seed = 1; seed <= 100; ++seed)
+    draw_errors(
+        cramer_rao_T_base_camera(test::hand_eye_samples(truth, poses, design, test::PoseNoise{}, seed), truth, nz), 200,
+        rng, vol, deg);
+  return {percentile(vol, 0.5), percentile(vol, 0.95), percentile(deg, 0.95)};
+}
+
+}  // namespace
+
+// Why the 0.1 mm target is not met with 0.05 mm / 0.05 deg PER AXIS (previous test): the
+// Cramer-Rao bound. For 15 poses of the recommended design the best possible unbiased
+// estimate has a working-volume error of 0.092 mm median and 0.150 mm at 95 % (pooled over
+// pose sets 1-100). Spreading the poses further than the camera's view allows (tilts 45-60 deg,
+// +-150 mm depth, +-180 x 130 mm across, turns +-180 deg, board on the flange face) still
+// leaves 0.105 mm. What reaches 0.1 mm at 95 %: ~32 poses (25: 0.112, 35: 0.094 mm), or
+// 0.033 mm / 0.033 deg per axis (0.099 mm), or the RMS-3D reading of the target
+// (0.05 / sqrt(3) per axis: 0.087 mm). Robot and board noise contribute about equally
+// (either alone: 0.092 / 0.089 mm).
+TEST(HandEyeBoard, FifteenPosesWithPerAxisNoiseCannotReachPointOneMillimetre) {
+  const auto nz = test::PoseNoise::per_axis(0.05, 0.05);
+  const auto plate = test::hand_eye_truth(true);
+  const auto d = test::recommended_design();
+  const auto report = [](const char* name, const Bound& b) {
+    std::printf("%-58s bound: median %.3f mm, 95%% %.3f mm; rotation 95%% %.4f deg\n", name, b.volume_median_mm,
+                b.volume_p95_mm, b.deg_p95);
+    return b;
+  };
+  const Bound rec = report("15 poses, recommended design", design_bound(plate, d, nz, 15));
+  EXPECT_GT(rec.volume_p95_mm, 0.13);
+  EXPECT_LT(rec.volume_p95_mm, 0.17);
+  EXPECT_LT(rec.deg_p95, 0.05);  // the rotation target is within reach
+  auto wide = d;
+  wide.tilt_deg = 60.0;
+  wide.min_tilt_deg = 45.0;
+  wide.depth_mm = 150.0;
+  wide.lateral_x_mm = 180.0;
+  wide.lateral_y_mm = 130.0;
+  wide.spin_deg = 180.0;
+  auto on_flange = plate;
+  on_flange.T_flange_board.translation().z() = 0.0;
+  const Bound w =
+      report("15 poses, wider than the view allows, board on the flange", design_bound(on_flange, wide, nz, 15));
+  EXPECT_GT(w.volume_p95_mm, 0.1);
+  EXPECT_LT(w.volume_p95_mm, rec.volume_p95_mm);
+  report("25 poses, recommended design", design_bound(plate, d, nz, 25));
+  EXPECT_LT(report("35 poses, recommended design", design_bound(plate, d, nz, 35)).volume_p95_mm, 0.1);
+  EXPECT_LT(report("15 poses, 0.033 mm / 0.033 deg per axis",
+                   design_bound(plate, d, test::PoseNoise::per_axis(0.033, 0.033), 15))
+                .volume_p95_mm,
+            0.1);
+  report("15 poses, robot noise only", design_bound(plate, d, test::PoseNoise{0.05, 0.05, 1e-6, 1e-6}, 15));
+  report("15 poses, board noise only", design_bound(plate, d, test::PoseNoise{1e-6, 1e-6, 0.05, 0.05}, 15));
+}
+
+// ...and no weighting or other estimator can do better than ours: it reaches the bound. On one
+// pose set, its spread over 300 noise draws equals the bound's (each of the 6 components within
+// 15 %); over the 100 survey pose sets, its errors measured in the bound's metric average
+// 6 (the chi-square mean; 5.4 measured, the standard error of that mean is 0.35).
+TEST(HandEyeBoard, TheEstimatorReachesTheCramerRaoBound) {
+  const auto nz = test::PoseNoise::per_axis(0.05, 0.05);
+  const auto plate = test::hand_eye_truth(true);
+  const auto d = test::recommended_design();
+  HandEyeOptions o;
+  o.robot_noise_mm = o.board_noise_mm = 0.05;
+  o.robot_noise_deg = o.board_noise_deg = 0.05;
+  const auto exact = test::hand_eye_samples(plate, 15, d, test::PoseNoise{}, 3);
+  const auto C = cramer_rao_T_base_camera(exact, plate, nz);
+  Eigen::Matrix<double, 6, 6> S = Eigen::Matrix<double, 6, 6>::Zero();
+  std::mt19937_64 rng(5);
+  const int draws = 300;
+  for (int k = 0; k < draws; ++k) {
+    auto noisy = exact;
+    for (auto& smp : noisy) {
+      smp.T_base_flange = smp.T_base_flange * test::noise(rng, nz.robot_sigma_mm, nz.robot_sigma_deg);
+      smp.T_camera_board = smp.T_camera_board * test::noise(rng, nz.board_sigma_mm, nz.board_sigma_deg);
+    }
+    const auto r = calibrate_hand_eye_board(noisy, o);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    const auto e = log6(plate.T_base_camera.inverse() * r->T_base_camera);
+    S += e * e.transpose() / draws;
+  }
+  for (int k = 0; k < 6; ++k) {
+    const double scale = k < 3 ? rad_to_deg(1.0) : 1.0;
+    std::printf("T_base_camera %s %c: bound sd %.4f, estimator sd %.4f %s\n", k < 3 ? "rotation" : "translation",
+                "xyz"[k % 3], scale * std::sqrt(C(k, k)), scale * std::sqrt(S(k, k)), k < 3 ? "deg" : "mm");
+    EXPECT_NEAR(std::sqrt(S(k, k) / C(k, k)), 1.0, 0.15) << "component " << k;
+  }
+  double chi2 = 0.0;
+  for (std::uint64_t seed = 1; seed <= 100; ++seed) {
+    const auto Cs = cramer_rao_T_base_camera(test::hand_eye_samples(plate, 15, d, test::PoseNoise{}, seed), plate, nz);
+    const auto r = calibrate_hand_eye_board(test::hand_eye_samples(plate, 15, d, nz, seed), o);
+    ASSERT_TRUE(r.ok()) << r.error().message;
+    const auto e = log6(plate.T_base_camera.inverse() * r->T_base_camera);
+    chi2 += e.dot(Cs.inverse() * e) / 100.0;
+  }
+  std::printf("pose sets 1-100: mean of d' C^-1 d = %.2f (6 at the bound)\n", chi2);
+  EXPECT_GT(chi2, 6.0 - 3 * 0.35);
+  EXPECT_LT(chi2, 6.0 + 3 * 0.35);
 }
 
 TEST(HandEyeBoard, RotationsAboutOneAxisAreRefusedWithAdvice) {
@@ -306,4 +505,3 @@ TEST(HandEyeSphere, PositionsOnALineAreRefused) {
   EXPECT_EQ(r.error().code, "calibration.degenerate_poses");
   EXPECT_NE(r.error().message.find("line"), std::string::npos);
 }
-
