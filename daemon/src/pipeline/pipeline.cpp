@@ -6,10 +6,14 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
+#include <sstream>
 #include <system_error>
 
 #include "fettle/config/load.hpp"
 #include "fettle/core/error.hpp"
+#include "fettle/core/log.hpp"
+#include "fettle/planning/sdf_grid.hpp"
 #include "fettle/planning/surface.hpp"
 #include "fettle/vision/multiview.hpp"
 #include "fettle/vision/preprocess.hpp"
@@ -108,6 +112,60 @@ bool selected(const ProcessOptions& options, const std::string& name) {
   return options.regions.empty() || std::find(options.regions.begin(), options.regions.end(), name) != options.regions.end();
 }
 
+/// The planner's signed distance: the exact sample-based one (sdf_from_samples) evaluated once
+/// on a banded grid (planning::SdfGrid), read from `<recipe dir>/.<recipe stem>.planning-cache/`
+/// when its key (hash of the samples and of every setting) matches, else built in parallel and
+/// written there. A stale or corrupt cache is rebuilt with a warning, never trusted.
+planning::SignedDistance signed_distance_grid(const config::PartRecipe& recipe, const LoadOptions& options,
+                                              const std::vector<Vec3>& pts, const std::vector<Vec3>& nrm,
+                                              double search_mm, LoadedRecipe& out) {
+  constexpr double kCellMm = 4.0;
+  auto exact = planning::sdf_from_samples(pts, nrm, kCellMm, search_mm);
+  const planning::SdfGridSettings gs;
+  Vec3 lo = Vec3::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const auto& p : pts) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
+  std::ostringstream params;
+  params.precision(17);
+  params << "sdf_from_samples 2 cell " << kCellMm << " search " << search_mm << " grid voxel " << gs.voxel_mm << " band "
+         << gs.band_mm << " tol " << gs.exact_tol_mm << " far " << gs.far_voxel_mm << " " << gs.far_band_mm << " "
+         << gs.far_tol_mm;
+  const auto key = planning::sdf_grid_key(pts, nrm, params.str());
+  fs::path dir = options.sdf_cache_dir;
+  if (dir.empty() && recipe.vision.cache && !recipe.source.empty())
+    dir = recipe.source.parent_path() / ("." + recipe.source.stem().string() + ".planning-cache");
+  const bool cache = !dir.empty();
+  const fs::path file = cache ? dir / "sdf-grid.bin" : fs::path{};
+  auto logger = log::get("planning");
+  if (cache) {
+    std::string why;
+    std::error_code ec;
+    const bool present = fs::exists(file, ec);
+    if (auto grid = planning::SdfGrid::load(file, key, exact, &why)) {
+      out.sdf_grid = grid->stats();
+      out.sdf_from_cache = true;
+      return grid->function();
+    }
+    if (present) logger->warn("signed-distance grid cache not used, rebuilding it: {}", why);
+  }
+  logger->info("building the template's signed-distance grid ({} samples, voxel {} mm, band {} mm)", pts.size(),
+               gs.voxel_mm, gs.band_mm);
+  const auto grid = planning::SdfGrid::build(exact, lo, hi, gs, [&](const char* lattice, std::size_t done, std::size_t total) {
+    logger->info("signed-distance grid: {} lattice {}/{} bricks", lattice, done, total);
+  });
+  const auto& st = grid.stats();
+  logger->info("signed-distance grid: {} band bricks of {}, {} far bricks, {:.1f} MiB; {} band and {} far cells answered "
+               "exactly; built in {:.1f} s",
+               st.bricks, st.brick_slots, st.far_bricks, static_cast<double>(st.memory_bytes) / (1024.0 * 1024.0),
+               st.exact_cells, st.far_exact_cells, st.build_ms / 1000.0);
+  out.sdf_grid = st;
+  if (cache) {
+    std::error_code ec;
+    fs::create_directories(file.parent_path(), ec);
+    if (Status s = grid.save(file, key); !s) logger->warn("signed-distance grid cache not written: {}", s.error().message);
+  }
+  return grid.function();
+}
+
 }  // namespace
 
 const config::Tool& LoadedRecipe::tool_for(const config::Region& region) const {
@@ -170,7 +228,7 @@ LoadedRecipe load_recipe(const config::PartRecipe& recipe, const LoadOptions& op
   double search_mm = 20.0;
   for (const auto& t : recipe.tools) search_mm = std::max(search_mm, 0.5 * t.diameter_mm + 5.0);
   out.template_points = fine.points;
-  out.template_sdf = planning::sdf_from_samples(std::move(pts), std::move(nrm), 4.0, search_mm);
+  out.template_sdf = signed_distance_grid(recipe, options, pts, nrm, search_mm, out);
   out.load_ms = ms_since(t0);
   return out;
 }

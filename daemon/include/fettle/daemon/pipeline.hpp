@@ -38,6 +38,7 @@
 #include "fettle/core/trajectory.hpp"
 #include "fettle/planning/io.hpp"
 #include "fettle/planning/planner.hpp"
+#include "fettle/planning/sdf_grid.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/inspect.hpp"
 
@@ -55,6 +56,11 @@ struct LoadOptions {
   std::optional<vision::Cloud> golden;
   /// Identity of an in-memory golden for the template cache (e.g. "sim:pump-body:0.5").
   std::string golden_identity;
+  /// Where the planner's signed-distance grid is cached. Empty: `<recipe dir>/.<recipe
+  /// stem>.planning-cache/` when the recipe's vision.cache is on, else not cached. The cache
+  /// key is a hash of the golden samples and of the settings, so an in-memory golden can be
+  /// cached too (bench, fettle-sim trial).
+  std::filesystem::path sdf_cache_dir;
 };
 
 /// Everything computed once per recipe.
@@ -63,7 +69,9 @@ struct LoadedRecipe {
   std::filesystem::path golden_file;  ///< the golden file read (empty when given in memory)
   std::string golden_identity;        ///< cache key of the golden
   vision::PartTemplate templ;         ///< whole-part and per-region templates (vision)
-  planning::SignedDistance template_sdf;  ///< signed distance to the template, part frame (planning)
+  planning::SignedDistance template_sdf;  ///< signed distance to the template, part frame (planning): a grid
+  planning::SdfGridStats sdf_grid;        ///< that grid's size (memory, bricks, exact cells, build time)
+  bool sdf_from_cache = false;            ///< the grid was read from the planning cache
   std::vector<Eigen::Vector3f> template_points;  ///< template surface samples, part frame (previews, verify)
   bool template_from_cache = false;
   double load_ms = 0.0;
