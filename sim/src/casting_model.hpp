@@ -65,6 +65,7 @@ class CastingModel {
   std::uint64_t seed = 0;
   bool golden = false;
   Transform T_base_part = Transform::Identity();
+  bool on_fixture = true;  ///< false: the scanner sees the scene without the part
   HeightField nominal;  ///< golden body top
   HeightField body;     ///< this casting's body top
   HeightField surface;  ///< body + material tops (what is seen)

@@ -311,7 +311,7 @@ Capture Scanner::capture(const Casting& casting, double slide_position_mm, std::
         }
         const Vec3 dp = R_pb * d;
         double th = 0;
-        if (march(fv, Ray(o_part, dp), best.t, th) && th < best.t) {
+        if (m.on_fixture && march(fv, Ray(o_part, dp), best.t, th) && th < best.t) {
           best.t = th;
           const Vec3 pp = o_part + th * dp;
           const Eigen::Vector2d g = m.surface.gradient(pp.x(), pp.y());

@@ -73,6 +73,31 @@ TEST_F(SimScan, IdealCapturePointsLieOnTheSceneAtTheirGroundTruthPose) {
   EXPECT_GT(static_cast<double>(on_part) / static_cast<double>(checked), 0.98);
 }
 
+TEST_F(SimScan, AnEmptyFixtureShowsTheSceneWithoutThePart) {
+  auto cfg = sim_test::small_scanner();
+  cfg.noise.enabled = false;
+  Casting empty = *casting_;
+  empty.take_off_fixture();
+  EXPECT_FALSE(empty.on_fixture());
+  EXPECT_TRUE(casting_->on_fixture());
+  const auto with = Scanner(cfg).capture(*casting_, 0.0);
+  const auto without = Scanner(cfg).capture(empty, 0.0);
+  ASSERT_GT(without.cloud.count_valid(), without.cloud.size() * 9 / 10);  // the table is still there
+  // Where the part was seen, the empty scene is farther from the camera (table, clamps below).
+  const auto T_part_camera = with.truth.T_base_part.inverse() * with.truth.T_base_camera;
+  std::size_t on_part = 0, deeper = 0;
+  for (std::size_t k = 0; k < with.cloud.size(); k += 7) {
+    if (!with.cloud.is_valid(k)) continue;
+    const fettle::Vec3 p = T_part_camera * with.cloud.points[k].cast<double>();
+    if (std::isnan(casting_->surface_z_mm(p.x(), p.y())) || p.z() < 1.0) continue;
+    if (casting_->distance_to_surface_mm(p) > 0.05) continue;
+    ++on_part;
+    if (without.cloud.is_valid(k) && without.cloud.points[k].z() > with.cloud.points[k].z() + 1.0f) ++deeper;
+  }
+  ASSERT_GT(on_part, 1000u);
+  EXPECT_GT(static_cast<double>(deeper) / static_cast<double>(on_part), 0.98);
+}
+
 TEST_F(SimScan, DepthNoiseOnAFlatTablePatchMatchesTheConfiguredSigma) {
   for (double sigma : {0.05, 0.2}) {
     auto cfg = sim_test::small_scanner();

@@ -54,6 +54,8 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
   // The casting on the fixture (guarded by casting_mutex).
   mutable std::mutex casting_mutex;
   std::optional<Casting> casting;
+  /// What the camera sees while the fixture is empty: the last casting's scene without it.
+  std::optional<Casting> empty_scene;
   std::atomic<std::uint64_t> casting_version{0};
   std::unique_ptr<Scanner> scanner;
   std::size_t views_rendered = 0;
@@ -122,8 +124,12 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       auto self = weak.lock();
       if (!self) return;
       std::lock_guard lock(self->casting_mutex);
-      if (!self->casting) return;
-      const Capture capture = self->scanner->capture(*self->casting, slide_mm, self->views_rendered++);
+      if (!self->casting && !self->empty_scene) {  // nothing loaded yet: a seed-0 scene, without its part
+        self->empty_scene = Casting::make(self->recipe, 0);
+        self->empty_scene->take_off_fixture();
+      }
+      const Casting& scene = self->casting ? *self->casting : *self->empty_scene;
+      const Capture capture = self->scanner->capture(scene, slide_mm, self->views_rendered++);
       const auto& z = capture.range;
       if (z.width != model.width || z.height != model.height) return;
       for (std::size_t i = 0; i < out.size(); ++i) {
@@ -292,17 +298,22 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
   void load(std::uint64_t seed) { set_casting(Casting::make(recipe, seed), "part loaded: casting " + std::to_string(seed)); }
 
   void load_wrong(std::uint64_t seed) {
-    auto c = Casting::make(recipe, seed);
-    const auto [lo, hi] = c.bounds_part_mm();
-    // Upside down: 180 degrees about the part's x axis, resting on its top.
-    Transform flip = Transform::Identity();
-    flip.rotate(Eigen::AngleAxisd(M_PI, Vec3::UnitX()));
-    flip.pretranslate(Vec3(0.0, 0.0, hi.z() + lo.z()));
-    c.set_T_base_part(c.T_base_part() * flip);
-    set_casting(std::move(c), "wrong part loaded: casting " + std::to_string(seed) + " upside down");
+    // Upside down would be a wrong part too, but the height-field renderer cannot show a part
+    // from below.
+    const config::PartRecipe mirrored = mirrored_in_x(recipe);
+    set_casting(Casting::make(mirrored, seed), "wrong part loaded: casting " + std::to_string(seed) + " mirrored (the other hand)");
   }
 
-  void unload() { set_casting(std::nullopt, "fixture emptied"); }
+  void unload() {
+    {
+      std::lock_guard lock(casting_mutex);
+      if (casting) {
+        empty_scene = *casting;
+        empty_scene->take_off_fixture();
+      }
+    }
+    set_casting(std::nullopt, "fixture emptied");
+  }
 
   void executed(const Trajectory& t, std::function<void()> done) {
     if (t.points.empty()) return done();

@@ -62,7 +62,8 @@ class CellSim {
   void load(std::uint64_t seed);
   /// Empties the fixture.
   void unload();
-  /// Puts casting `seed` upside down on the fixture: not the part the recipe describes.
+  /// Puts casting `seed` mirrored in x on the fixture (the other hand of a left/right pair):
+  /// not the part the recipe describes.
   void load_wrong(std::uint64_t seed);
   /// Raises a cycle request for what is on the fixture.
   void request();

@@ -59,6 +59,10 @@ struct CastingOptions {
   bool vary = true;  ///< false: every range at its midpoint, no form deviation, nominal placement
 };
 
+/// The other hand of a left/right pair: the recipe with its [geometry] mirrored in x (blocks,
+/// cylinders, flashes, risers). Castings of it are the wrong part for that recipe.
+config::PartRecipe mirrored_in_x(const config::PartRecipe& recipe);
+
 class CastingModel;  // private implementation
 
 /// One individual casting (the golden body + its form deviation + flash and risers) placed
@@ -100,6 +104,10 @@ class Casting {
   [[nodiscard]] double golden_top_z_mm(double x_mm, double y_mm) const;
   /// Removes every bit of flash and riser exactly (an oracle "perfect grind", no tool).
   void remove_all_material();
+  /// Takes the part off the fixture: scans show the table, clamps and clutter only (an empty
+  /// fixture). The material and surface queries still answer for the part.
+  void take_off_fixture();
+  [[nodiscard]] bool on_fixture() const;
   /// Signed distance to the golden body solid (negative inside), part frame.
   [[nodiscard]] double golden_sdf_mm(const Vec3& p_part) const;
 
