@@ -27,6 +27,7 @@ void read_vision(TableReader& root, VisionSettings& v) {
     t->choice("icp_method", v.icp_method, {"point_to_plane"});
     t->integer("icp_max_iterations", v.icp_max_iterations, {1, 1000});
     t->number("min_fitness", v.min_fitness, {0.0, 1.0});
+    t->number("min_part_fitness", v.min_part_fitness, {0.0, 1.0});
     t->integer("min_region_points", v.min_region_points, {3, 100'000'000});
     t->integer("excess_min_cluster_points", v.excess_min_cluster_points, {1, 1'000'000});
     t->boolean("cache", v.cache);

@@ -112,7 +112,18 @@ TEST_F(Pipeline, EmptyFixtureIsAVisionErrorNotACrash) {
   const sim::Scanner scanner(small_scanner());
   const auto r = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
   ASSERT_FALSE(r);
+  EXPECT_EQ(r.error().code, "vision.empty_fixture") << r.error().message;
   EXPECT_NE(r.error().message.find("step vision"), std::string::npos) << r.error().message;
+}
+
+TEST_F(Pipeline, AFixtureWithoutItsPartIsAnEmptyFixture) {
+  // the scene the camera sees when the fixture is empty: the table and clamps, no casting
+  auto casting = sim::Casting::make(loaded_->recipe, 2);
+  casting.take_off_fixture();
+  const sim::Scanner scanner(small_scanner());
+  const auto r = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
+  ASSERT_FALSE(r) << "an empty fixture was planned";
+  EXPECT_EQ(r.error().code, "vision.empty_fixture") << r.error().message;
 }
 
 TEST_F(Pipeline, PlansEveryRegionOfASimulatedCastingAndValidates) {
@@ -140,6 +151,20 @@ TEST_F(Pipeline, PlansEveryRegionOfASimulatedCastingAndValidates) {
   for (const char* name : {"fuse", "vision", "plan"})
     EXPECT_TRUE(std::any_of(r->timings.begin(), r->timings.end(), [&](const StepTiming& t) { return t.step == name; }))
         << name;
+}
+
+TEST_F(Pipeline, AMirroredCastingIsTheWrongPartAndIsNotPlanned) {
+  // The other hand of a left/right pair: the same features, mirrored. Its whole-part fitness
+  // was 0.34-0.36 for seeds 1-3 against 0.546-0.550 for the right part (2026-11-30), so
+  // [vision] min_part_fitness 0.45 sits between them; nothing is planned on it.
+  const sim::Scanner scanner(small_scanner());
+  const auto mirrored = sim::mirrored_in_x(loaded_->recipe);
+  for (std::uint64_t seed : {1U, 3U}) {
+    const auto r = process(*loaded_, cell_, views_of(scanner.capture_all(sim::Casting::make(mirrored, seed))));
+    ASSERT_FALSE(r) << "seed " << seed << ": a mirrored casting was planned";
+    EXPECT_EQ(r.error().code, "vision.no_match") << "seed " << seed << ": " << r.error().message;
+    EXPECT_NE(r.error().message.find("min_part_fitness"), std::string::npos) << r.error().message;
+  }
 }
 
 TEST_F(Pipeline, OnlyTheRequestedRegionsArePlannedForARegrind) {

@@ -172,6 +172,8 @@ TEST(Faults, ErrorsOfTheLinksMapToCodes) {
   EXPECT_EQ(map("spindle.fault", true), FaultCode::spindle_fault);
   EXPECT_EQ(map("vision.no_part", false, "only 3 scan points inside the [vision] crop box"), FaultCode::empty_fixture);
   EXPECT_EQ(map("vision.no_part", false, "the part was not found in the scan"), FaultCode::wrong_part);
+  EXPECT_EQ(map("vision.empty_fixture", false, "no part on the fixture"), FaultCode::empty_fixture);
+  EXPECT_EQ(map("vision.no_match", false, "whole-part fitness 0.34 below [vision] min_part_fitness"), FaultCode::wrong_part);
   EXPECT_EQ(map("something.else", false), FaultCode::internal);
   const auto f = fettle::daemon::fault_from_error({"camera.fault", "no frame"}, "capture 1", false, FaultCode::internal);
   EXPECT_EQ(f.describe(), "E201 camera.timeout (capture 1): camera.fault: no frame");

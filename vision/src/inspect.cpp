@@ -216,11 +216,44 @@ bool on_plane(const std::optional<Eigen::Vector4f>& plane, const Eigen::Vector3f
 
 double scene_voxel(const config::PartRecipe& recipe) { return recipe.template_source.voxel_mm > 0 ? recipe.template_source.voxel_mm : 0.5; }
 
+/// An empty fixture, told apart from a wrong or misplaced part: almost nothing above the
+/// fixture plane where the part should stand. The footprint is the template's top view at the
+/// nominal placement, grown by the placement tolerance; "almost nothing" is fewer than a tenth
+/// of the points the template shows from above (clamps and clutter stand beside the part).
+std::optional<Error> empty_fixture(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& scene) {
+  const Transform T_fixture_part = nominal_T_fixture_part(recipe);
+  const Eigen::Matrix3f R = T_fixture_part.linear().cast<float>();
+  const Eigen::Vector3f t = T_fixture_part.translation().cast<float>();
+  const auto& fine = templ.whole().fine();
+  Eigen::Vector2f lo = Eigen::Vector2f::Constant(std::numeric_limits<float>::max()), hi = -lo;
+  std::size_t seen_from_above = 0;
+  for (std::size_t i = 0; i < fine.size(); ++i) {
+    const Eigen::Vector3f q = R * fine.points[i] + t;
+    lo = lo.cwiseMin(q.head<2>());
+    hi = hi.cwiseMax(q.head<2>());
+    if (i < fine.normals.size() && (R * fine.normals[i]).z() > 0.3f) ++seen_from_above;
+  }
+  const double extent = (hi - lo).norm();
+  const auto grow = static_cast<float>(recipe.fixture.position_tolerance_mm +
+                                       0.5 * extent * std::sin(deg_to_rad(recipe.fixture.rotation_tolerance_deg)));
+  lo.array() -= grow;
+  hi.array() += grow;
+  // The template and the scene are both at the template's voxel size: comparable counts.
+  std::size_t inside = 0;
+  for (const auto& p : scene.points)
+    if (p.x() >= lo.x() && p.x() <= hi.x() && p.y() >= lo.y() && p.y() <= hi.y()) ++inside;
+  if (seen_from_above == 0 || inside * 10 >= seen_from_above) return std::nullopt;
+  return Error{"vision.empty_fixture",
+               "no part on the fixture: " + std::to_string(inside) + " scan points above the fixture plane where the part stands (the template shows about " +
+                   std::to_string(seen_from_above) + " from above); place a part, or check the [fixture] position_mm of the recipe"};
+}
+
 /// Localisation, per-region ICP and excess on a preprocessed scene (fixture frame, voxelized
 /// at the template resolution, outliers and fixture plane removed, near the part).
 Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const PartTemplate& templ, Cloud&& scene,
                                         StageTimer& timer) {
   const auto& vs = recipe.vision;
+  if (auto e = empty_fixture(recipe, templ, scene)) return *e;
   if (scene.size() < static_cast<std::size_t>(vs.min_region_points))
     return Error{"vision.no_part", "only " + std::to_string(scene.size()) +
                                        " scan points near the part's place on the fixture (after cropping, outlier and "
@@ -269,6 +302,11 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     return Error{"vision.no_part", "the part was not found in the scan (best fitness " +
                                        std::to_string(best ? best->fitness : 0.0) +
                                        "): is it on the fixture, within the placement tolerance of the recipe?"};
+  if (best->fitness < vs.min_part_fitness)
+    return Error{"vision.no_match", "the scan does not match the part of recipe '" + recipe.id + "': whole-part fitness " +
+                                        std::to_string(best->fitness) + " below [vision] min_part_fitness " +
+                                        std::to_string(vs.min_part_fitness) +
+                                        ": is it the right part (not the other hand of a pair), the right way round?"};
   Inspection out;
   out.whole = *best;
   timer.mark("whole-part ICP");

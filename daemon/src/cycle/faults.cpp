@@ -112,7 +112,7 @@ Fault fault_from_error(const Error& error, std::string_view step, bool motion, F
     code = camera_timeout;
   } else if (starts_with(c, "camera.")) {
     code = camera_unavailable;
-  } else if (c == "vision.empty_scan" ||
+  } else if (c == "vision.empty_scan" || c == "vision.empty_fixture" ||
              (c == "vision.no_part" && error.message.find("crop box") != std::string::npos)) {
     code = empty_fixture;
   } else if (c == "vision.no_part" || c == "vision.no_match" || c == "vision.low_fitness") {

@@ -27,6 +27,9 @@ struct VisionSettings {
   std::string icp_method = "point_to_plane";  ///< point_to_plane (the only method so far)
   int icp_max_iterations = 40;
   double min_fitness = 0.6;            ///< a region whose fine fitness is lower fails
+  /// The whole part's fitness below this: not this recipe's part (e.g. the other hand of a
+  /// left/right pair). The simulated pump body scores 0.55, its mirror image 0.36.
+  double min_part_fitness = 0.45;
   int min_region_points = 200;         ///< a region with fewer scene points fails
   // excess material
   int excess_min_cluster_points = 10;  ///< smaller clusters of excess points are noise
