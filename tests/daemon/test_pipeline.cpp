@@ -50,6 +50,9 @@ class Pipeline : public ::testing::Test {
     }
     lo.golden = golden;
     lo.golden_identity = "test";
+    // the planner's signed-distance grid (~45 s to build) is kept in the build tree between
+    // runs; its key (a hash of the golden samples and the settings) rejects a stale one
+    lo.sdf_cache_dir = fs::path(FETTLE_BIN_DIR).parent_path() / "test-cache" / "pipeline";
     loaded_ = std::make_unique<LoadedRecipe>(load_recipe(recipe, lo));
     cell_ = config::load_cell(fs::path(FETTLE_SOURCE_DIR) / "config/cell.sim.toml");
   }
