@@ -20,7 +20,7 @@ function(fettle_add_test)
   if(ARG_DEPENDS)
     add_dependencies(${ARG_NAME} ${ARG_DEPENDS})
   endif()
-  set(props LABELS "${ARG_LABELS}" TIMEOUT ${ARG_TIMEOUT})
+  set(props TIMEOUT ${ARG_TIMEOUT})
   if(ARG_RESOURCE_LOCK)
     list(APPEND props RESOURCE_LOCK ${ARG_RESOURCE_LOCK})
   endif()
@@ -28,4 +28,11 @@ function(fettle_add_test)
     list(APPEND props ENVIRONMENT "${ARG_ENVIRONMENT}")
   endif()
   gtest_discover_tests(${ARG_NAME} DISCOVERY_TIMEOUT 60 PROPERTIES ${props})
+  # The labels are set after discovery, from the list of discovered tests: passed through
+  # PROPERTIES, two labels ("integration;slow") are flattened into the property list and pair
+  # up wrongly, so TIMEOUT and RESOURCE_LOCK were lost (CMake 3.25's GoogleTestAddTests).
+  set(labels_file "${CMAKE_CURRENT_BINARY_DIR}/${ARG_NAME}_labels.cmake")
+  file(WRITE "${labels_file}"
+       "if(${ARG_NAME}_TESTS)\n  set_tests_properties(\${${ARG_NAME}_TESTS} PROPERTIES LABELS \"${ARG_LABELS}\")\nendif()\n")
+  set_property(DIRECTORY APPEND PROPERTY TEST_INCLUDE_FILES "${labels_file}")
 endfunction()

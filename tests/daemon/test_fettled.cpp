@@ -166,7 +166,9 @@ class Fettled : public ::testing::Test {
   }
 
   void SetUp() override {
-    if (cell_ == nullptr || pid_ <= 0) GTEST_SKIP() << "no cell";
+    if (!fs::exists(kBin / "fettled")) GTEST_SKIP() << "fettled not built";
+    // A failed suite set-up (e.g. UDP 3956 taken by another camera) is a failure, not a skip.
+    if (cell_ == nullptr || pid_ <= 0) FAIL() << "the simulated cell or fettled did not start: see the set-up failure above";
     ASSERT_TRUE(alive()) << tail_log();
   }
 
