@@ -329,28 +329,9 @@ std::pair<Vec3, Vec3> Casting::bounds_part_mm() const {
 double Casting::distance_to_surface_mm(const Vec3& p_part) const { return model_->surface.distance(p_part); }
 double Casting::distance_to_golden_mm(const Vec3& p_part) const { return model_->nominal.distance(p_part); }
 double Casting::golden_top_z_mm(double x_mm, double y_mm) const { return model_->nominal_top(x_mm, y_mm); }
-config::PartRecipe mirrored_in_x(const config::PartRecipe& recipe) {
-  config::PartRecipe mirrored = recipe;
-  auto& g = mirrored.geometry;
-  auto flip = [](std::array<double, 2>& c) { c[0] = -c[0]; };
-  for (auto& b : g.blocks) {
-    const double lo = b.min_mm[0];
-    b.min_mm[0] = -b.max_mm[0];
-    b.max_mm[0] = -lo;
-    b.top_slope_deg[0] = -b.top_slope_deg[0];
-  }
-  for (auto& c : g.cylinders) flip(c.center_mm);
-  for (auto& r : g.ring_flashes) flip(r.cylinder.center_mm);
-  for (auto& r : g.risers) flip(r.center_mm);
-  for (auto& f : g.straight_flashes) {
-    flip(f.start_mm);
-    f.direction_deg = 180.0 - f.direction_deg;
-  }
-  return mirrored;
-}
-
 void Casting::take_off_fixture() { model_->on_fixture = false; }
 bool Casting::on_fixture() const { return model_->on_fixture; }
+
 void Casting::remove_all_material() {
   for (auto& m : model_->materials) m.z1 = m.z0;
   model_->rebuild_surface();
@@ -647,6 +628,26 @@ Casting Casting::make(const config::PartRecipe& recipe, std::uint64_t seed, cons
 
 Casting Casting::golden(const config::PartRecipe& recipe, std::uint64_t seed) {
   return Casting(build(recipe, seed, true, true));
+}
+
+config::PartRecipe mirrored_in_x(const config::PartRecipe& recipe) {
+  config::PartRecipe mirrored = recipe;
+  auto& g = mirrored.geometry;
+  auto flip = [](std::array<double, 2>& c) { c[0] = -c[0]; };
+  for (auto& b : g.blocks) {
+    const double lo = b.min_mm[0];
+    b.min_mm[0] = -b.max_mm[0];
+    b.max_mm[0] = -lo;
+    b.top_slope_deg[0] = -b.top_slope_deg[0];
+  }
+  for (auto& c : g.cylinders) flip(c.center_mm);
+  for (auto& r : g.ring_flashes) flip(r.cylinder.center_mm);
+  for (auto& r : g.risers) flip(r.center_mm);
+  for (auto& f : g.straight_flashes) {
+    flip(f.start_mm);
+    f.direction_deg = 180.0 - f.direction_deg;
+  }
+  return mirrored;
 }
 
 }  // namespace fettle::sim

@@ -6,10 +6,12 @@
 #include <cmath>
 #include <condition_variable>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <sstream>
 #include <thread>
+#include <utility>
 
 #include <boost/asio/executor_work_guard.hpp>
 #include <boost/asio/io_context.hpp>
@@ -212,23 +214,27 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
           (camera ? ", camera " + options.address + " (UDP 3956)" : ", no camera"));
   }
 
-  /// Runs `f` on the devices' io thread and returns its value (members of RobotSim and the drive live there).
+  /// Runs `f` on the devices' io thread and returns its value (members of RobotSim and the drive
+  /// live there). Waits at most 2 s (a T{} then); the shared state outlives a late handler.
   template <class T>
-  T on_io(const std::function<T()>& f) const {
-    T value{};
-    std::mutex m;
-    std::condition_variable cv;
-    bool done = false;
-    asio::post(const_cast<asio::io_context&>(io), [&] {
+  T on_io(std::function<T()> f) const {
+    struct Shared {
+      std::mutex m;
+      std::condition_variable cv;
+      bool done = false;
+      T value{};
+    };
+    auto sh = std::make_shared<Shared>();
+    asio::post(const_cast<asio::io_context&>(io), [sh, f = std::move(f)] {
       T v = f();
-      std::lock_guard l(m);
-      value = v;
-      done = true;
-      cv.notify_all();
+      std::lock_guard l(sh->m);
+      sh->value = std::move(v);
+      sh->done = true;
+      sh->cv.notify_all();
     });
-    std::unique_lock l(m);
-    cv.wait_for(l, std::chrono::seconds(2), [&] { return done; });
-    return value;
+    std::unique_lock l(sh->m);
+    sh->cv.wait_for(l, std::chrono::seconds(2), [&] { return sh->done; });
+    return sh->value;
   }
   int robot_port() const { return on_io<int>([this] { return robot->port(); }); }
 
@@ -307,12 +313,14 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
   void unload() {
     {
       std::lock_guard lock(casting_mutex);
-      if (casting) {
-        empty_scene = *casting;
+      // the camera goes on seeing the last casting's scene, without the part
+      if (auto last = std::exchange(casting, std::nullopt)) {
+        empty_scene = std::move(last);
         empty_scene->take_off_fixture();
       }
+      ++casting_version;
     }
-    set_casting(std::nullopt, "fixture emptied");
+    event("fixture emptied");
   }
 
   void executed(const Trajectory& t, std::function<void()> done) {
@@ -545,6 +553,9 @@ std::vector<double> CellSim::material_mm3() const {
 }
 double CellSim::spindle_rpm() const {
   return impl_->on_io<double>([this] { return impl_->drive->velocity_rpm(); });
+}
+RobotSimStats CellSim::robot_stats() const {
+  return impl_->on_io<RobotSimStats>([this] { return impl_->robot->stats(); });
 }
 void CellSim::on_event(CellEventHandler handler) {
   std::lock_guard lock(impl_->handler_mutex);

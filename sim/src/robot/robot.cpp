@@ -523,6 +523,8 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
   void halt(const std::string& why) {
     ++exec_token_;
     exec_timer_.cancel();
+    ++server_->stats_.trajectories_halted;
+    server_->stats_.last_halt_reason = why;
     log().info("simulated robot: trajectory {} halted after {} of {} points ({})", id_, executed_.size(),
                stored_.size(), why);
     hand_over();

@@ -19,6 +19,7 @@
 #include "fettle/config/cell.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/sim/plc.hpp"
+#include "fettle/sim/robot.hpp"
 
 namespace fettle::sim {
 
@@ -88,6 +89,8 @@ class CellSim {
   [[nodiscard]] std::vector<double> material_mm3() const;
   /// The simulated spindle drive's actual speed.
   [[nodiscard]] double spindle_rpm() const;
+  /// A copy of what the simulated robot has seen (runs received, completed, halted and why).
+  [[nodiscard]] RobotSimStats robot_stats() const;
   void on_event(CellEventHandler handler);
 
   struct Impl;

@@ -60,6 +60,8 @@ struct RobotSimStats {
   int naks = 0;
   int trajectories_received = 0;
   int trajectories_executed = 0;  ///< runs that ended with DONE
+  int trajectories_halted = 0;    ///< runs stopped before their end (STOP, RESET, connection lost)
+  std::string last_halt_reason;   ///< "STOP", "RESET" or "connection closed"
   std::string last_close_reason;
 };
 
