@@ -265,6 +265,38 @@ TEST_F(SpindleDriveTest, DriveFaultsWhenTheMastersHeartbeatStops) {
   EXPECT_TRUE(master->status().fault);
 }
 
+// fettled restarted or killed: the drive faulted on the lost heartbeat (0x8130). The new master
+// reads 0x603F at start, sees that its own absence was the cause and resets the fault.
+TEST_F(SpindleDriveTest, ARestartedMasterResetsTheHeartbeatFaultItsAbsenceCaused) {
+  SpindleOptions o;
+  o.heartbeat_producer_ms = 30;
+  o.heartbeat_timeout_ms = 120;
+  make_started(o);
+  ASSERT_TRUE(await(io, [&](auto h) { master->spin_up(3000, h); }).ok());
+  master.reset();  // the process is gone: no more heartbeats
+  ASSERT_TRUE(run_until(io, [&] { return drive->state() == DriveState::fault; }));
+  master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master again"), o);
+  const Status s = await(io, [&](auto h) { master->start(h); });
+  ASSERT_TRUE(s.ok()) << s.error().message;
+  EXPECT_FALSE(master->status().fault);
+  EXPECT_EQ(drive->state(), DriveState::switch_on_disabled);
+  EXPECT_TRUE(await(io, [&](auto h) { master->spin_up(2000, h); }).ok());
+}
+
+// Any other fault found at start stays latched for an operator, and says which it is.
+TEST_F(SpindleDriveTest, AnyOtherFaultFoundAtStartStaysLatchedAndIsNamed) {
+  make_started();
+  drive->inject_fault(fettle::sim::SpindleFault::overcurrent);
+  ASSERT_TRUE(run_until(io, [&] { return drive->state() == DriveState::fault; }));
+  master.reset();
+  master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master again"), SpindleOptions{});
+  const Status s = await(io, [&](auto h) { master->start(h); });
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, "spindle.fault");
+  EXPECT_NE(s.error().message.find("0x2310"), std::string::npos) << s.error().message;
+  EXPECT_EQ(drive->state(), DriveState::fault);
+}
+
 TEST_F(SpindleDriveTest, LoadCurrentRisesWithMaterialRemoval) {
   make_started();
   ASSERT_TRUE(await(io, [&](auto h) { master->spin_up(6000, h); }).ok());

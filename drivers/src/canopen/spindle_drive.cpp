@@ -74,6 +74,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
   bool transport_started = false;
   bool closed = false;
   bool boot_seen = false;
+  std::optional<std::uint16_t> found_error_code;  ///< 0x603F read at start() when the drive was in fault
   std::function<void(const SpindleEvent&)> on_event;
 
   // SDO client: one transfer at a time.
@@ -497,12 +498,43 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
       me->wait_until([](const SpindleStatus& x) { return x.nmt == NmtState::operational && x.feedback_frames > 0; },
                      me->opt.step_timeout_ms, "the drive to become operational and send TPDO1", std::move(d));
     });
+    // A drive found in fault: its error code (0x603F) says why. A heartbeat error (0x8130) means
+    // the drive lost this master while it was not running (fettled restarted or killed): the
+    // cause is gone now that the heartbeat is back, so the fault is reset here, with a warning.
+    // Any other fault stays latched until an operator resets it.
+    steps.push_back([me](Done d) {
+      if (me->st.state != DriveState::fault) return d(Status{});
+      me->sdo_upload(od::error_code, 0, [me, d = std::move(d)](Result<std::uint32_t> r) {
+        me->found_error_code = r ? std::optional<std::uint16_t>(static_cast<std::uint16_t>(*r & 0xFFFFU)) : std::nullopt;
+        d(Status{});
+      });
+    });
+    steps.push_back([me](Done d) {
+      if (me->st.state != DriveState::fault || me->found_error_code != kHeartbeatErrorCode) return d(Status{});
+      me->log->warn("drive node {} was in fault {} when it was started: it lost the master's heartbeat while "
+                    "fettled was not running; resetting that fault",
+                    me->opt.node_id, hex(kHeartbeatErrorCode, 4) + " " + emcy_code_text(kHeartbeatErrorCode));
+      me->sdo_download(od::controlword, 0, controlword::disable_voltage, 2, [me, d = std::move(d)](Status s) mutable {
+        if (!s) return d(std::move(s));
+        me->sdo_download(od::controlword, 0, controlword::fault_reset, 2, [me, d = std::move(d)](Status s2) mutable {
+          if (!s2) return d(std::move(s2));
+          me->sdo_download(od::controlword, 0, controlword::disable_voltage, 2, std::move(d));
+        });
+      });
+    });
+    steps.push_back(read_statusword_step());
     steps.push_back([me](Done d) {
       me->st.configured = true;
       me->log->info("drive node {} operational, state '{}', rated current {:.2f} A", me->opt.node_id,
                     canopen::to_string(me->st.state), me->st.rated_current_a);
       if (me->st.state == DriveState::fault || me->st.state == DriveState::fault_reaction_active) {
-        me->set_statusword(me->st.statusword);  // latches the fault now that we are configured
+        if (me->found_error_code && *me->found_error_code != 0)
+          me->latch_fault(make_error("spindle.fault", "spindle: the drive was in fault when started: error code (0x603F) " +
+                                                          hex(*me->found_error_code, 4) + " " +
+                                                          emcy_code_text(*me->found_error_code) +
+                                                          "; fix the cause, then fault_reset()"));
+        else
+          me->set_statusword(me->st.statusword);  // latches the fault now that we are configured
         return d(*me->st.fault);
       }
       d(me->fault_status());

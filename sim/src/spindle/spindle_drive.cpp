@@ -90,6 +90,7 @@ struct SimulatedSpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     od[key(od::identity, 4)] = {1, 4, false};
     od[key(od::controlword, 0)] = {0, 2, true};
     od[key(od::statusword, 0)] = {0, 2, false};
+    od[key(od::error_code, 0)] = {0, 2, false};
     od[key(od::vl_target_velocity, 0)] = {0, 2, true};
     od[key(od::vl_velocity_actual, 0)] = {0, 2, false};
     od[key(od::modes_of_operation, 0)] = {static_cast<std::uint8_t>(OperationMode::profile_velocity), 1, true};
@@ -260,6 +261,7 @@ struct SimulatedSpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     }
     log->warn("drive fault: {}", describe(e));
     od[key(od::error_register, 0)].value = e.error_register;
+    od[key(od::error_code, 0)].value = e.error_code;
     state = DriveState::fault;  // the power stage is off: the spindle coasts down on the ramp
     if (nmt != NmtState::stopped) send(emcy_frame(opt.node_id, e));
   }
@@ -388,6 +390,7 @@ struct SimulatedSpindleDrive::Impl : std::enable_shared_from_this<Impl> {
       if (reset_edge) {
         state = DriveState::switch_on_disabled;
         od[key(od::error_register, 0)].value = 0;
+        od[key(od::error_code, 0)].value = 0;
         send(emcy_frame(opt.node_id, Emergency{}));  // error reset
         log->info("fault reset");
       }

@@ -124,6 +124,7 @@ inline constexpr std::uint16_t controlword = 0x6040;
 inline constexpr std::uint16_t statusword = 0x6041;
 inline constexpr std::uint16_t vl_target_velocity = 0x6042;
 inline constexpr std::uint16_t vl_velocity_actual = 0x6044;
+inline constexpr std::uint16_t error_code = 0x603F;  ///< CiA 402: the code of the active fault, 0 = none
 inline constexpr std::uint16_t modes_of_operation = 0x6060;
 inline constexpr std::uint16_t modes_of_operation_display = 0x6061;
 inline constexpr std::uint16_t velocity_actual = 0x606C;
@@ -131,6 +132,9 @@ inline constexpr std::uint16_t motor_rated_current = 0x6075;
 inline constexpr std::uint16_t current_actual = 0x6078;
 inline constexpr std::uint16_t target_velocity = 0x60FF;
 }  // namespace od
+
+/// CiA 301 emergency code "life guard error or heartbeat error": the drive lost its master.
+inline constexpr std::uint16_t kHeartbeatErrorCode = 0x8130;
 
 enum class OperationMode : std::int8_t { velocity = 2, profile_velocity = 3 };
 
