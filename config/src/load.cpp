@@ -99,6 +99,7 @@ void read_cell(TableReader& root, CellConfig& cfg) {
   if (auto t = root.table("records")) {
     t->integer("keep_cycles", cfg.records.keep_cycles, {1, 10000000});
     t->number("keep_mb", cfg.records.keep_mb, {1.0, 1e9});
+    t->number("min_free_mb", cfg.records.min_free_mb, {0.0, 1e9});
   }
 }
 

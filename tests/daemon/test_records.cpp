@@ -1,6 +1,12 @@
 // Cycle records: journal, interrupted cycles after a restart, atomic files, retention; fault table.
+#include <fcntl.h>
 #include <gtest/gtest.h>
+#include <sched.h>
+#include <sys/mount.h>
+#include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -25,7 +31,62 @@ fettle::config::RecordsSection keep(int cycles, double mb) {
   fettle::config::RecordsSection r;
   r.keep_cycles = cycles;
   r.keep_mb = mb;
+  r.min_free_mb = 0.0;  // the machine's free space must not decide these tests
   return r;
+}
+
+std::string read_all(const fs::path& p) {
+  std::ifstream in(p);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+bool write_proc(const char* path, const std::string& text) {
+  const int fd = ::open(path, O_WRONLY | O_CLOEXEC);
+  if (fd < 0) return false;
+  const bool ok = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size());
+  ::close(fd);
+  return ok;
+}
+
+/// Mounts a tmpfs of `size` on `dir` in a mount namespace of this process only (each test runs
+/// in its own process under ctest). Root: a new mount namespace; otherwise a user namespace
+/// too, where the kernel allows it. Returns why not, or "" on success.
+std::string mount_small_tmpfs(const fs::path& dir, const char* size) {
+  fs::create_directories(dir);
+  if (::geteuid() != 0) {
+    const auto uid = ::geteuid();
+    const auto gid = ::getegid();
+    if (::unshare(CLONE_NEWUSER | CLONE_NEWNS) != 0)
+      return std::string("unshare(CLONE_NEWUSER | CLONE_NEWNS): ") + std::strerror(errno) +
+             " (not root and unprivileged user namespaces are off)";
+    (void)write_proc("/proc/self/setgroups", "deny");
+    if (!write_proc("/proc/self/uid_map", "0 " + std::to_string(uid) + " 1") ||
+        !write_proc("/proc/self/gid_map", "0 " + std::to_string(gid) + " 1"))
+      return "cannot write the user namespace's uid/gid map";
+  } else if (::unshare(CLONE_NEWNS) != 0) {
+    return std::string("unshare(CLONE_NEWNS): ") + std::strerror(errno);
+  }
+  if (::mount(nullptr, "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0)
+    return std::string("making / private: ") + std::strerror(errno);
+  const std::string options = std::string("size=") + size + ",mode=0700";
+  if (::mount("tmpfs", dir.c_str(), "tmpfs", 0, options.c_str()) != 0)
+    return std::string("mount tmpfs: ") + std::strerror(errno);
+  return "";
+}
+
+/// Writes a file until the file system is full; returns the bytes written.
+std::size_t fill_disk(const fs::path& file) {
+  const int fd = ::open(file.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+  if (fd < 0) return 0;
+  const std::string block(64 * 1024, 'f');
+  std::size_t total = 0;
+  for (;;) {
+    const auto n = ::write(fd, block.data(), block.size());
+    if (n <= 0) break;
+    total += static_cast<std::size_t>(n);
+  }
+  ::close(fd);
+  return total;
 }
 
 }  // namespace
@@ -132,6 +193,124 @@ TEST(Records, RetentionBySizeNeverDeletesTheCurrentCycle) {
   for (const auto& e : fs::directory_iterator(r.cycles_dir())) left.push_back(e.path().filename().string());
   ASSERT_EQ(left.size(), 1U);
   EXPECT_EQ(left.front(), last);
+  fs::remove_all(dir);
+}
+
+// Below [records] min_free_mb the oldest records go before a cycle, never the cycle itself;
+// when that is not enough the cycle still goes on, with a warning that says where and what to do.
+TEST(Records, BelowMinFreeTheOldestRecordsGoAndTheCycleGoesOnWithAWarning) {
+  const auto dir = fresh_dir("min-free");
+  {
+    Records r(dir, keep(100, 1000));
+    ASSERT_TRUE(r.open());
+    for (int i = 0; i < 3; ++i) {
+      auto c = r.begin(1, "p", false);
+      ASSERT_TRUE(c);
+      ASSERT_TRUE(Records::write_file(*c, "capture_1.ply", std::string(1000, 'x')));
+      c->result = "OK";
+      ASSERT_TRUE(r.end(*c));
+    }
+  }
+  auto plenty = keep(100, 1000);
+  plenty.min_free_mb = 1.0;  // met on any machine that can run the tests
+  {
+    Records r(dir, plenty);
+    ASSERT_TRUE(r.open());
+    auto c = r.begin(1, "p", false);
+    ASSERT_TRUE(c);
+    EXPECT_TRUE(r.warning().empty()) << r.warning();
+    c->result = "OK";
+    ASSERT_TRUE(r.end(*c));
+  }
+  std::size_t before = 0;
+  for (const auto& e : fs::directory_iterator(dir / "cycles")) before += e.is_directory() ? 1U : 0U;
+  ASSERT_EQ(before, 4U);
+
+  auto scarce = keep(100, 1000);
+  Records probe(dir, scarce);
+  const auto free = probe.free_bytes();
+  ASSERT_TRUE(free.has_value());
+  scarce.min_free_mb = static_cast<double>(*free) / (1024.0 * 1024.0) + 1e6;  // a terabyte more than there is
+  Records r(dir, scarce);
+  ASSERT_TRUE(r.open());
+  auto c = r.begin(1, "p", false);
+  ASSERT_TRUE(c) << c.error().message;
+  EXPECT_TRUE(fs::is_directory(c->dir)) << "the cycle goes on with its record";
+  std::vector<std::string> left;
+  for (const auto& e : fs::directory_iterator(dir / "cycles")) left.push_back(e.path().filename().string());
+  ASSERT_EQ(left.size(), 1U) << "every older record is deleted";
+  EXPECT_EQ(left.front(), c->id);
+  EXPECT_NE(r.warning().find("min_free_mb"), std::string::npos) << r.warning();
+  EXPECT_NE(r.warning().find(dir.string()), std::string::npos) << r.warning();
+  const auto journal = read_all(dir / "journal.jsonl");
+  std::size_t deleted = 0;
+  for (std::size_t at = journal.find("\"deleted\""); at != std::string::npos; at = journal.find("\"deleted\"", at + 1)) ++deleted;
+  EXPECT_EQ(deleted, 4U) << "the journal keeps every cycle's lines and says which records went";
+  c->result = "OK";
+  EXPECT_TRUE(r.end(*c));
+  EXPECT_EQ(r.count(), 5U);
+  fs::remove_all(dir);
+}
+
+// A real full disk (a 1 MB tmpfs): the cycle begins anyway, what cannot be written is an error
+// that names the file, and the journal's lines wait in memory until there is room: none is lost.
+TEST(RecordsOnAFullDisk, TheCycleGoesOnAndNoJournalLineIsLost) {
+  const auto dir = fresh_dir("full-disk");
+  if (const auto why = mount_small_tmpfs(dir, "1m"); !why.empty())
+    GTEST_SKIP() << "cannot mount a small tmpfs here: " << why;
+  const auto state = dir / "state";
+  {
+    Records r(state, keep(100, 1000));
+    ASSERT_TRUE(r.open());
+    ASSERT_GT(fill_disk(dir / "filler"), 0U);
+    auto c = r.begin(1, "p", false);
+    ASSERT_TRUE(c) << c.error().message;
+    EXPECT_NE(r.warning().find("full"), std::string::npos) << r.warning();
+    EXPECT_EQ(r.pending_lines(), 1U);
+    const auto st = Records::write_file(*c, "report.json", std::string(8192, 'r'));
+    ASSERT_FALSE(st) << "written on a full disk?";
+    EXPECT_NE(st.error().message.find("report.json"), std::string::npos) << st.error().message;
+    fs::remove(dir / "filler");
+    c->result = "OK";
+    EXPECT_TRUE(r.end(*c));
+    EXPECT_EQ(r.pending_lines(), 0U);
+  }
+  Records again(state, keep(100, 1000));
+  auto interrupted = again.open();
+  ASSERT_TRUE(interrupted);
+  EXPECT_TRUE(interrupted->empty()) << "the start line came before the end line";
+  ASSERT_EQ(again.count(), 1U);
+  EXPECT_EQ(again.cycles(1).front().result, "OK");
+  ::umount2(dir.c_str(), MNT_DETACH);
+  fs::remove_all(dir);
+}
+
+// Records on a small disk with min_free_mb: old records make room for new ones, every file of
+// every cycle is written.
+TEST(RecordsOnAFullDisk, MinFreeMakesRoomForEveryCycle) {
+  const auto dir = fresh_dir("small-disk");
+  if (const auto why = mount_small_tmpfs(dir, "1m"); !why.empty())
+    GTEST_SKIP() << "cannot mount a small tmpfs here: " << why;
+  auto retention = keep(100, 1000);
+  retention.min_free_mb = 0.5;
+  Records r(dir / "state", retention);
+  ASSERT_TRUE(r.open());
+  const std::string capture(300 * 1024, 'c');
+  for (int i = 0; i < 6; ++i) {
+    auto c = r.begin(1, "p", false);
+    ASSERT_TRUE(c) << c.error().message;
+    EXPECT_TRUE(r.warning().empty()) << "cycle " << i << ": " << r.warning();
+    const auto st = Records::write_file(*c, "capture_1.ply", capture);
+    EXPECT_TRUE(st) << "cycle " << i << ": " << st.error().message;
+    c->result = "OK";
+    EXPECT_TRUE(r.end(*c));
+  }
+  EXPECT_EQ(r.count(), 6U);
+  std::size_t kept = 0;
+  for (const auto& e : fs::directory_iterator(r.cycles_dir())) kept += e.is_directory() ? 1U : 0U;
+  EXPECT_GE(kept, 1U);
+  EXPECT_LT(kept, 6U) << "six 300 KB records cannot fit on 1 MB";
+  ::umount2(dir.c_str(), MNT_DETACH);
   fs::remove_all(dir);
 }
 

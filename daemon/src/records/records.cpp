@@ -2,6 +2,7 @@
 #include "fettle/daemon/records.hpp"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -62,28 +63,71 @@ CycleSummary CycleSummary::from_json(const json& j) {
 Records::Records(fs::path state_dir, config::RecordsSection retention)
     : dir_(std::move(state_dir)), retention_(retention) {}
 
-Status Records::append(const json& line) {
-  const std::string text = line.dump() + "\n";
+namespace {
+bool disk_full(int e) { return e == ENOSPC || e == EDQUOT || e == EFBIG; }
+double mib(std::uintmax_t bytes) { return static_cast<double>(bytes) / (1024.0 * 1024.0); }
+}  // namespace
+
+Status Records::append_now(const std::string& text) {
   const auto path = journal_path();
   const int fd = ::open(path.c_str(), O_WRONLY | O_APPEND | O_CREAT | O_CLOEXEC, 0640);
-  if (fd < 0)
-    return Error{"records.journal", "cannot open the cycle journal " + path.string() + ": " + std::strerror(errno) +
-                                        " (check [cell] state_dir and its permissions)"};
+  if (fd < 0) {
+    const int e = errno;
+    return Error{disk_full(e) ? "records.disk_full" : "records.journal",
+                 "cannot open the cycle journal " + path.string() + ": " + std::strerror(e) +
+                     (disk_full(e) ? "" : " (check [cell] state_dir and its permissions)")};
+  }
+  struct stat before {};
+  const bool sized = ::fstat(fd, &before) == 0;
   std::size_t done = 0;
   while (done < text.size()) {
     const auto n = ::write(fd, text.data() + done, text.size() - done);
     if (n < 0) {
       if (errno == EINTR) continue;
       const int e = errno;
+      // No torn line in the middle of the journal: cut what this write added.
+      if (done > 0 && sized) (void)::ftruncate(fd, before.st_size);
       ::close(fd);
-      return Error{"records.journal", "cannot append to " + path.string() + ": " + std::strerror(e)};
+      return Error{disk_full(e) ? "records.disk_full" : "records.journal",
+                   "cannot append to " + path.string() + ": " + std::strerror(e)};
     }
     done += static_cast<std::size_t>(n);
   }
   const int rc = ::fsync(fd);
+  const int e = errno;
   ::close(fd);
-  if (rc != 0) return Error{"records.journal", "fsync of " + path.string() + " failed: " + std::strerror(errno)};
+  if (rc != 0) return Error{"records.journal", "fsync of " + path.string() + " failed: " + std::strerror(e)};
   return {};
+}
+
+Status Records::append(const json& line) {
+  pending_.push_back(line.dump() + "\n");
+  // Lines that waited for room first, in their order; the rest stays pending.
+  while (!pending_.empty()) {
+    if (auto st = append_now(pending_.front()); !st) {
+      if (pending_.size() > 100000) {  // a disk full for days: keep the newest, say so
+        pending_.erase(pending_.begin());
+        log::get("records")->error("journal: dropped the oldest line waiting for disk space (100000 waiting)");
+      }
+      return Error{st.error().code, st.error().message + " (" + std::to_string(pending_.size()) +
+                                        " journal line(s) kept in memory until there is room)"};
+    }
+    pending_.erase(pending_.begin());
+  }
+  return {};
+}
+
+std::optional<std::uintmax_t> Records::free_bytes() const {
+  std::error_code ec;
+  const auto info = fs::space(dir_, ec);
+  if (ec) return std::nullopt;
+  return info.available;
+}
+
+bool Records::space_short() const {
+  if (retention_.min_free_mb <= 0.0) return false;
+  const auto free = free_bytes();
+  return free && mib(*free) < retention_.min_free_mb;
 }
 
 Result<std::vector<std::string>> Records::open() {
@@ -168,13 +212,37 @@ Result<CycleSummary> Records::begin(int recipe_id, const std::string& part_id, b
   s.part_id = part_id;
   s.dry = dry;
   s.dir = cycles_dir() / s.id;
+  auto log = log::get("records");
+  // Room first: the oldest records go until min_free_mb is free (or none is left to delete).
+  warning_.clear();
+  if (space_short()) {
+    const auto before = free_bytes().value_or(0);
+    const auto removed = apply_retention();
+    const auto after = free_bytes().value_or(0);
+    log->warn("only {:.0f} MB free for records in {} ([records] min_free_mb {:.0f}): deleted the {} oldest cycle "
+              "record(s), {:.0f} MB free now",
+              mib(before), dir_.string(), retention_.min_free_mb, removed, mib(after));
+    if (space_short())
+      warning_ = "only " + std::to_string(static_cast<long long>(mib(after))) + " MB free for records in " +
+                 dir_.string() + " after deleting every older cycle record ([records] min_free_mb " +
+                 std::to_string(static_cast<long long>(retention_.min_free_mb)) +
+                 "): this cycle's record may be incomplete; free space on that file system";
+  }
   std::error_code ec;
   fs::create_directories(s.dir, ec);
-  if (ec) return Error{"records.cycle_dir", "cannot create " + s.dir.string() + ": " + ec.message()};
+  if (ec) {
+    if (!disk_full(ec.value())) return Error{"records.cycle_dir", "cannot create " + s.dir.string() + ": " + ec.message()};
+    warning_ = "the disk of " + dir_.string() + " is full: cycle " + s.id +
+               " goes on without its record directory; free space on that file system";
+  }
   json line = s.to_json();
   line["event"] = "start";
   line["seq"] = sequence_;
-  if (auto st = append(line); !st) return st.error();
+  if (auto st = append(line); !st) {
+    if (st.error().code != "records.disk_full") return st.error();
+    if (warning_.empty()) warning_ = st.error().message;
+  }
+  if (!warning_.empty()) log->warn("cycle {}: {}", s.id, warning_);
   cycles_.push_back(s);
   return s;
 }
@@ -236,7 +304,7 @@ std::size_t Records::apply_retention(const std::string& keep_id) {
   auto log = log::get("records");
   for (std::size_t i = 0; i < dirs.size(); ++i) {
     const std::size_t left = dirs.size() - removed;
-    if (left <= keep && total <= max_bytes) break;
+    if (left <= keep && total <= max_bytes && !space_short()) break;
     const auto name = dirs[i].filename().string();
     if (name == keep_id) continue;
     fs::remove_all(dirs[i], ec);
@@ -249,8 +317,8 @@ std::size_t Records::apply_retention(const std::string& keep_id) {
     for (auto& c : cycles_)
       if (c.id == name) c.record_deleted = true;
     (void)append(json{{"event", "deleted"}, {"id", name}, {"at", utc_now_iso()}});
-    log->info("retention: removed cycle record {} (keep_cycles {}, keep_mb {})", name, retention_.keep_cycles,
-              retention_.keep_mb);
+    log->info("retention: removed cycle record {} (keep_cycles {}, keep_mb {}, min_free_mb {})", name,
+              retention_.keep_cycles, retention_.keep_mb, retention_.min_free_mb);
   }
   return removed;
 }

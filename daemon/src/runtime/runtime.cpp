@@ -404,6 +404,12 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     if (rs == drivers::RobotState::disconnected || rs == drivers::RobotState::connecting ||
         rs == drivers::RobotState::faulted || rs == drivers::RobotState::ready)
       co_return;
+    if (rs == drivers::RobotState::stopping) {  // a quick STOP is on its way: wait for its ACK
+      for (int i = 0; i < (cell.robot.reply_timeout_ms + 500) / 20 && robot->state() == drivers::RobotState::stopping; ++i)
+        co_await sleep(milliseconds(20));
+      if (robot->state() == drivers::RobotState::stopping) log->warn("robot STOP not acknowledged in time");
+      co_return;
+    }
     auto st = co_await await_op<Status>(nullptr, [this](std::function<void(Status)> done) { robot->stop(done); },
                                         milliseconds(cell.robot.reply_timeout_ms + 500));
     if (!st || !*st) log->warn("robot STOP not acknowledged: {}", st ? st->error().message : "timeout");
@@ -558,6 +564,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       return;
     }
     c->summary = *begun;
+    if (!records.warning().empty()) c->warnings.push_back("records: " + records.warning());
     cycle = c;
     ++cycles_total;
     if (from_plc) ++cycles_in_execute;
@@ -1086,6 +1093,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
           co_await self->stop_robot();
           co_await self->stop_spindle();
           co_await self->wait_cycle_gone();
+          self->log->info("shutdown: robot {}, spindle at {:.0f} rpm", self->robot ? drivers::to_string(self->robot->state()) : "not configured",
+                          self->spindle ? self->spindle->status().velocity_rpm : 0.0);
           if (self->plc_link) self->plc_link->stop();
           if (self->robot) self->robot->shutdown();
           self->workers.stop();
@@ -1125,7 +1134,8 @@ json Runtime::status() {
          {"plc_up", s.plc_up},
          {"robot", s.robot_state},
          {"spindle_configured", s.spindle_configured},
-         {"records", impl_->records.state_dir().string()}};
+         {"records", impl_->records.state_dir().string()},
+         {"records_warning", impl_->records.warning().empty() ? json(nullptr) : json(impl_->records.warning())}};
 #ifdef FETTLE_VERSION
   j["version"] = FETTLE_VERSION;
 #endif

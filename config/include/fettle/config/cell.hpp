@@ -49,6 +49,7 @@ struct ControlSection {
 struct RecordsSection {
   int keep_cycles = 1000;
   double keep_mb = 20000.0;
+  double min_free_mb = 500.0;  ///< free space kept on the state directory's file system (oldest records go first)
 };
 
 struct CellConfig {

@@ -11,7 +11,10 @@
 //                                      written atomically (temp + fsync + rename)
 //
 // Retention ([records] keep_cycles, keep_mb) deletes the oldest cycle directories after each
-// cycle; the journal keeps its lines. Not thread-safe: use from the daemon's event loop, except
+// cycle; the journal keeps its lines. A full disk never stops a cycle: before each cycle the
+// oldest records are deleted until [records] min_free_mb is free; what still cannot be written
+// is a warning (warning()), and journal lines that could not be appended are kept in memory and
+// appended, in order, as soon as there is room again. Not thread-safe: use from the daemon's event loop, except
 // write_file() which only touches the cycle's own directory and may run on a worker.
 #include <cstdint>
 #include <filesystem>
@@ -54,7 +57,9 @@ class Records {
   /// line for every cycle that started and never ended. Returns those cycles' ids.
   Result<std::vector<std::string>> open();
 
-  /// Starts a cycle: a new id, its directory, a "start" line in the journal.
+  /// Starts a cycle: a new id, its directory, a "start" line in the journal. Makes room first
+  /// (min_free_mb). A full disk is not an error here: the cycle goes on, warning() says what
+  /// could not be recorded. Other failures (permissions) are errors.
   Result<CycleSummary> begin(int recipe_id, const std::string& part_id, bool dry);
   /// Writes one file of the cycle atomically (thread-safe for distinct names).
   static Status write_file(const CycleSummary& cycle, std::string_view name, std::string_view data);
@@ -72,12 +77,23 @@ class Records {
   /// Deletes the oldest cycle directories beyond the limits (never `keep_id`). Returns how many.
   std::size_t apply_retention(const std::string& keep_id = {});
 
+  /// Bytes available to this process on the state directory's file system (nullopt if unknown).
+  [[nodiscard]] std::optional<std::uintmax_t> free_bytes() const;
+  /// The last disk-space warning (empty while records are written normally).
+  [[nodiscard]] const std::string& warning() const { return warning_; }
+  /// Journal lines waiting for room on the disk.
+  [[nodiscard]] std::size_t pending_lines() const { return pending_.size(); }
+
  private:
   Status append(const nlohmann::json& line);
+  Status append_now(const std::string& text);
+  [[nodiscard]] bool space_short() const;
   std::filesystem::path dir_;
   config::RecordsSection retention_;
   std::vector<CycleSummary> cycles_;  ///< journal order (oldest first)
   std::uint64_t sequence_ = 0;
+  std::string warning_;
+  std::vector<std::string> pending_;  ///< journal lines not yet on disk (disk full), oldest first
 };
 
 /// UTC now as "2026-11-30T09:15:02.123Z".
