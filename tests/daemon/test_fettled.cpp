@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -17,6 +18,7 @@
 #include <iostream>
 #include <map>
 #include <memory>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <string>
@@ -43,6 +45,18 @@ const fs::path kBin = FETTLE_BIN_DIR;
 std::string read_text(const fs::path& p) {
   std::ifstream in(p);
   return {std::istreambuf_iterator<char>(in), {}};
+}
+
+/// Runs a command, returns its standard output (empty if it could not start).
+std::string run_output(const std::string& command) {
+  std::string out;
+  FILE* f = ::popen(command.c_str(), "r");
+  if (f == nullptr) return out;
+  char buf[4096];
+  std::size_t n = 0;
+  while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) out.append(buf, n);
+  ::pclose(f);
+  return out;
 }
 
 bool wait_until(const std::function<bool()>& pred, std::chrono::milliseconds timeout) {
@@ -77,7 +91,7 @@ std::string cell_toml(const fs::path& dir, int plc, int robot, int spindle) {
     << "[safety]\nworkspace_min_mm = [-600.0, -600.0, -20.0]\nworkspace_max_mm = [600.0, 600.0, 800.0]\n"
     << "tool_axis_cone_deg = 60.0\nmax_speed_mm_s = 200.0\nmax_spindle_rpm = 12000.0\nsafe_height_mm = 80.0\n\n"
     << "[control]\nsocket = \"" << (dir / "fettled.sock").string() << "\"\n\n"
-    << "[records]\nkeep_cycles = 100\nkeep_mb = 5000.0\n";
+    << "[records]\nkeep_cycles = 100\nkeep_mb = 5000.0\nmin_free_mb = 1.0\n";
   return t.str();
 }
 
@@ -124,18 +138,34 @@ class Fettled : public ::testing::Test {
     cell_->start();
     const auto config = dir_ / "cell.toml";
     std::ofstream(config) << cell_toml(dir_, cell_->plc_port(), cell_->robot_port(), cell_->spindle_port());
+    spawn_fettled(false);
+  }
+
+  /// Starts fettled on the test's cell file; its output goes to fettled.log (appended to on a restart).
+  static void spawn_fettled(bool append) {
     const std::string exe = (kBin / "fettled").string();
     const std::string log = (dir_ / "fettled.log").string();
+    const std::string config = (dir_ / "cell.toml").string();
     posix_spawn_file_actions_t fa;
     posix_spawn_file_actions_init(&fa);
-    posix_spawn_file_actions_addopen(&fa, 1, log.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&fa, 1, log.c_str(), O_WRONLY | O_CREAT | (append ? O_APPEND : O_TRUNC), 0644);
     posix_spawn_file_actions_adddup2(&fa, 1, 2);
-    std::vector<std::string> args{exe, "--config", config.string(), "--allow-root"};
+    std::vector<std::string> args{exe, "--config", config, "--allow-root"};
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
+    pid_ = 0;
     ASSERT_EQ(posix_spawn(&pid_, exe.c_str(), &fa, nullptr, argv.data(), environ), 0);
     posix_spawn_file_actions_destroy(&fa);
+  }
+
+  /// Waits up to `timeout` for fettled to exit; its wait status, or nullopt if it still runs.
+  static std::optional<int> wait_exit(std::chrono::milliseconds timeout) {
+    int status = 0;
+    const bool gone = wait_until([&] { return ::waitpid(pid_, &status, WNOHANG) == pid_; }, timeout);
+    if (!gone) return std::nullopt;
+    pid_ = 0;
+    return status;
   }
 
   static void TearDownTestSuite() {
@@ -371,6 +401,105 @@ TEST_F(Fettled, B_EveryFaultEndsInItsStateAndTheCellRecovers) {
   EXPECT_EQ(results.size(), 8U) << journal;
   const auto report = nlohmann::json::parse(read_text(dir_ / "state/cycles" / results.rbegin()->first / "report.json"));
   EXPECT_TRUE(report.contains("steps"));
+}
+
+/// The journal as id -> last event's result ("" while only started, "INTERRUPTED" when marked).
+std::map<std::string, std::string> journal_results(const fs::path& journal) {
+  std::map<std::string, std::string> results;
+  std::istringstream in(read_text(journal));
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    const auto j = nlohmann::json::parse(line);
+    if (j["event"] == "start") results[j["id"]] = "";
+    if (j["event"] == "end") results[j["id"]] = j["result"];
+    if (j["event"] == "interrupted") results[j["id"]] = "INTERRUPTED";
+  }
+  return results;
+}
+
+// C: what systemd does to a running daemon. SIGTERM while the robot grinds: the robot is told
+// STOP, the spindle stops, the cycle's record is finalised (ABORTED, 602) and fettled exits 0.
+// SIGKILL while the robot grinds: nothing can be finalised, so after the restart the cycle shows
+// as INTERRUPTED in the journal and through `fettle cycles`; the robot halted when the
+// connection went, the drive stopped when fettled's heartbeat did.
+TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
+  const fs::path journal = dir_ / "state/journal.jsonl";
+  const std::string socket = (dir_ / "fettled.sock").string();
+  const std::string fettle = (kBin / "fettle").string();
+  // fettled answers on its control socket once it is configured
+  const auto up = [&] {
+    return alive() && run_output(fettle + " status --socket " + socket + " --json 2>/dev/null").find("\"state\"") != std::string::npos;
+  };
+  ASSERT_TRUE(wait_until(up, 300s)) << tail_log();  // the first start builds the planning grid
+
+  // --- SIGTERM mid-run ---
+  ASSERT_TRUE(to_execute());
+  const auto halted_before = cell_->robot_stats().trajectories_halted;
+  const auto executed_before = cell_->robot_stats().trajectories_executed;
+  cell_->load(11);
+  cell_->request();
+  ASSERT_TRUE(spindle_turning()) << tail_log();
+  std::this_thread::sleep_for(500ms);
+  ASSERT_EQ(cell_->robot_stats().trajectories_executed, executed_before) << "the run ended before the signal";
+  std::string term_id;
+  for (const auto& [id, result] : journal_results(journal))
+    if (result.empty()) term_id = id;
+  ASSERT_FALSE(term_id.empty()) << read_text(journal);
+  ASSERT_EQ(::kill(pid_, SIGTERM), 0);
+  const auto status = wait_exit(60s);
+  ASSERT_TRUE(status.has_value()) << "fettled did not exit within 60 s of SIGTERM\n" << tail_log();
+  EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 0) << "wait status " << *status << "\n" << tail_log();
+  // At once: the drive's own heartbeat-loss stop comes only a heartbeat timeout (1 s) after fettled's last one.
+  EXPECT_LT(std::abs(cell_->spindle_rpm()), 1.0) << "fettled exited with the spindle turning";
+  const auto robot = cell_->robot_stats();
+  EXPECT_EQ(robot.trajectories_halted, halted_before + 1);
+  EXPECT_EQ(robot.last_halt_reason, "STOP") << "the robot must be stopped by fettled, not by the lost connection";
+  EXPECT_EQ(journal_results(journal)[term_id], "ABORTED") << read_text(journal);
+  const auto report = nlohmann::json::parse(read_text(dir_ / "state/cycles" / term_id / "report.json"));
+  EXPECT_EQ(report.value("result", ""), "ABORTED");
+  EXPECT_EQ(report["fault"].value("code", 0), 602) << report.dump(2);
+
+  // --- SIGKILL mid-run, then a restart ---
+  // The PLC still asks for a cycle (the aborted one got no result): the restarted fettled runs
+  // one for what is on the fixture once in Execute, so the next casting goes on first.
+  cell_->load(12);
+  spawn_fettled(true);
+  ASSERT_TRUE(wait_until([&] { return up(); }, 120s)) << tail_log();
+  ASSERT_TRUE(to_execute());
+  const auto running = [&] {
+    for (const auto& [id, result] : journal_results(journal))
+      if (result.empty()) return true;
+    return false;
+  };
+  if (!wait_until(running, 10s)) cell_->request();
+  ASSERT_TRUE(spindle_turning()) << tail_log();
+  std::this_thread::sleep_for(500ms);
+  std::string kill_id;
+  for (const auto& [id, result] : journal_results(journal))
+    if (result.empty()) kill_id = id;
+  ASSERT_FALSE(kill_id.empty()) << read_text(journal);
+  ASSERT_EQ(::kill(pid_, SIGKILL), 0);
+  ASSERT_TRUE(wait_exit(10s).has_value());
+  EXPECT_TRUE(wait_until([&] { return cell_->robot_stats().trajectories_halted == halted_before + 2; }, 10s));
+  EXPECT_EQ(cell_->robot_stats().last_halt_reason, "connection closed");
+  EXPECT_TRUE(wait_until([] { return std::abs(cell_->spindle_rpm()) < 1.0; }, 10s))
+      << "the drive kept turning at " << cell_->spindle_rpm() << " rpm without fettled's heartbeat";
+  EXPECT_EQ(journal_results(journal)[kill_id], "") << "nothing can write after SIGKILL";
+
+  spawn_fettled(true);
+  ASSERT_TRUE(wait_until([&] { return up(); }, 120s)) << tail_log();
+  EXPECT_EQ(journal_results(journal)[kill_id], "INTERRUPTED") << read_text(journal);
+  const auto listed = nlohmann::json::parse(run_output(fettle + " cycles --socket " + socket + " --json"), nullptr, false);
+  ASSERT_TRUE(listed.is_array()) << listed.dump();
+  bool shown = false;
+  for (const auto& c : listed)
+    if (c.value("id", "") == kill_id) {
+      shown = true;
+      EXPECT_EQ(c.value("result", ""), "INTERRUPTED") << c.dump();
+    }
+  EXPECT_TRUE(shown) << kill_id << " not in `fettle cycles`: " << listed.dump();
+  EXPECT_TRUE(alive()) << tail_log();
 }
 
 }  // namespace
