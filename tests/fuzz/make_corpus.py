@@ -179,4 +179,22 @@ write(d, "drive_fault", b"\x01" + boot + sdo_ok + tpdo + emcy + can(2, [0x08, 0x
 write(d, "drive_abort", b"\x01" + boot + sdo_abort + sdo_value + can(0, [0x81, 0x00]))
 write(d, "master_to_drive", b"\x01" + can(4, [0x2B, 0x40, 0x60, 0x00, 0x0F, 0x00, 0, 0]) +
       can(4, [0x40, 0x41, 0x60, 0x00, 0, 0, 0, 0]) + can(0, [0x01, 0x01]) + can(0, [0x80, 0x00]))
+# ---- control socket: request lines as `fettle` and scripts send them (docs/daemon-control.md).
+# Header: read size (1..64), max_line_bytes (uint16, 16 + value % 1024), maintenance (bit 0).
+d = target("control")
+
+
+def control(name, chunk, max_line, maintenance, stream):
+    write(d, name, bytes([chunk]) + struct.pack("<H", max_line) + bytes([maintenance]) + stream)
+
+
+control("status", 7, 1000, 0, b'{"cmd":"status","id":1}\n')
+control("cycles", 3, 1000, 0, b'{"cmd":"cycles","limit":20}\n{"cmd":"last_cycle"}\n')
+control("maintenance_hold", 11, 1000, 0,
+        b'{"cmd":"hold"}\n{"cmd":"maintenance","on":true}\n{"cmd":"hold"}\n{"cmd":"unhold"}\r\n'
+        b'{"cmd":"reset"}\n{"cmd":"dry_cycle","id":"x"}\n')
+control("bad", 1, 1000, 1, b'not json\n[1,2]\n{"cmd":5}\n{"cmd":"cycles","limit":-1}\n{"cmd":"nope"}\n\n   \n'
+        b'{"cmd":"maintenance","on":"yes"}\n')
+control("oversize", 5, 40, 0, b'{"cmd":"status","pad":"' + b"x" * 100 + b'"}\n{"cmd":"status"}\n' + b"y" * 90)
+
 print("corpora written to", CORPUS)

@@ -59,6 +59,57 @@ constexpr std::size_t max_pending_output = 4U * 1024U * 1024U;
 
 }  // namespace
 
+namespace {
+void append_reply(std::string& out, const json& r) {
+  out += r.dump(-1, ' ', false, json::error_handler_t::replace);
+  out += '\n';
+}
+}  // namespace
+
+LineProtocol::LineProtocol(Handle handle, std::size_t max_line_bytes)
+    : handle_(std::move(handle)), max_line_bytes_(max_line_bytes) {}
+
+bool LineProtocol::consume(std::string_view data, std::string& out, std::size_t max_output) {
+  const std::size_t max = max_line_bytes_;
+  while (!data.empty()) {
+    const auto nl = data.find('\n');
+    const std::string_view part = data.substr(0, nl);
+    if (discarding_) {
+      if (nl != std::string_view::npos) discarding_ = false;
+    } else if (line_.size() + part.size() > max) {
+      append_reply(out, error_reply(code::line_too_long,
+                                    "request line longer than " + std::to_string(max) +
+                                        " bytes: ignored up to the next newline; send one JSON object "
+                                        "per line, e.g. {\"cmd\":\"status\"}"));
+      line_.clear();
+      discarding_ = nl == std::string_view::npos;
+    } else {
+      line_.append(part);
+      if (nl != std::string_view::npos) {
+        handle_line(out);
+        line_.clear();
+      }
+    }
+    if (nl == std::string_view::npos) break;
+    data.remove_prefix(nl + 1);
+    if (out.size() > max_output) return false;
+  }
+  return true;
+}
+
+void LineProtocol::handle_line(std::string& out) {
+  std::string_view text = line_;
+  if (!text.empty() && text.back() == '\r') text.remove_suffix(1);
+  if (text.find_first_not_of(" \t") == std::string_view::npos) return;  // blank line: ignore
+  json request = json::parse(text, nullptr, false);
+  if (request.is_discarded()) {
+    append_reply(out, error_reply(code::bad_json, "request is not valid JSON: send one JSON object per line, e.g. "
+                                                  "{\"cmd\":\"status\"}"));
+    return;
+  }
+  append_reply(out, handle_(request));
+}
+
 struct Connection;
 
 struct Server::Impl {
@@ -92,8 +143,7 @@ struct Connection : std::enable_shared_from_this<Connection> {
   asio::steady_timer write_timer;
   asio::steady_timer idle_timer;
   std::array<char, 4096> chunk{};
-  std::string line;
-  bool discarding = false;  // inside an oversize line: drop bytes up to the next '\n'
+  LineProtocol protocol{[s = server](const json& request) { return s->handle(request); }, server->options.max_line_bytes};
   std::string out;
   bool closed = false;
 
@@ -130,53 +180,12 @@ struct Connection : std::enable_shared_from_this<Connection> {
                            });
   }
 
-  void reply(const json& r) {
-    out += r.dump(-1, ' ', false, json::error_handler_t::replace);
-    out += '\n';
-  }
-
   void consume(std::string_view data) {
-    const std::size_t max = server->options.max_line_bytes;
-    while (!data.empty()) {
-      const auto nl = data.find('\n');
-      const std::string_view part = data.substr(0, nl);
-      if (discarding) {
-        if (nl != std::string_view::npos) discarding = false;
-      } else if (line.size() + part.size() > max) {
-        reply(error_reply(code::line_too_long, "request line longer than " + std::to_string(max) +
-                                                   " bytes: ignored up to the next newline; send one JSON object "
-                                                   "per line, e.g. {\"cmd\":\"status\"}"));
-        line.clear();
-        discarding = nl == std::string_view::npos;
-      } else {
-        line.append(part);
-        if (nl != std::string_view::npos) {
-          handle_line();
-          line.clear();
-        }
-      }
-      if (nl == std::string_view::npos) break;
-      data.remove_prefix(nl + 1);
-      if (out.size() > max_pending_output) {
-        log::get("control")->warn("control: a client queued more than {} bytes of replies; closing it",
-                                  max_pending_output);
-        close();
-        return;
-      }
+    if (!protocol.consume(data, out, max_pending_output)) {
+      log::get("control")->warn("control: a client queued more than {} bytes of replies; closing it",
+                                max_pending_output);
+      close();
     }
-  }
-
-  void handle_line() {
-    std::string_view text = line;
-    if (!text.empty() && text.back() == '\r') text.remove_suffix(1);
-    if (text.find_first_not_of(" \t") == std::string_view::npos) return;  // blank line: ignore
-    json request = json::parse(text, nullptr, false);
-    if (request.is_discarded()) {
-      reply(error_reply(code::bad_json, "request is not valid JSON: send one JSON object per line, e.g. "
-                                        "{\"cmd\":\"status\"}"));
-      return;
-    }
-    reply(server->handle(request));
   }
 
   void write() {

@@ -19,6 +19,7 @@
 #include <chrono>
 #include <cstddef>
 #include <filesystem>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -130,6 +131,27 @@ class Server {
   friend struct Connection;
   struct Impl;
   std::unique_ptr<Impl> impl_;
+};
+
+/// The byte-stream side of one client, without the socket: splits what arrives into request
+/// lines (CR LF or LF; at most max_line_bytes, a longer one gets line_too_long and is skipped
+/// up to its newline; blank lines are ignored), hands each parsed object to `handle` and
+/// appends one reply line per request to `out`. The result does not depend on how the bytes
+/// are split into reads. Used by the server's connections, and by the fuzz target.
+class LineProtocol {
+ public:
+  using Handle = std::function<json(const json& request)>;
+  LineProtocol(Handle handle, std::size_t max_line_bytes);
+  /// Consumes `data`; returns false (and stops) once `out` holds more than `max_output` bytes
+  /// (a client that sends requests without reading the replies).
+  bool consume(std::string_view data, std::string& out, std::size_t max_output);
+
+ private:
+  void handle_line(std::string& out);
+  Handle handle_;
+  std::size_t max_line_bytes_;
+  std::string line_;
+  bool discarding_ = false;  ///< inside an oversize line: drop bytes up to the next '\n'
 };
 
 /// Blocking client for the CLI and scripts. Errors carry code::not_running with the message
