@@ -95,6 +95,48 @@ std::string cell_toml(const fs::path& dir, int plc, int robot, int spindle) {
   return t.str();
 }
 
+/// One inet socket of a process, from /proc/<pid>/net/{tcp,udp}{,6} and /proc/<pid>/fd.
+struct InetSocket {
+  std::string proto;  ///< "tcp", "udp", "tcp6", "udp6"
+  std::string local;  ///< "127.0.0.1:40000"; IPv6 as its hex
+  std::string remote;
+  int state = 0;      ///< TCP: 1 established, 10 listen
+  [[nodiscard]] std::string text() const { return proto + " " + local + " -> " + remote + " state " + std::to_string(state); }
+};
+
+std::string decode_address(const std::string& hex) {
+  const auto colon = hex.find(':');
+  const std::string ip = hex.substr(0, colon);
+  const int port = std::stoi(hex.substr(colon + 1), nullptr, 16);
+  if (ip.size() != 8) return ip + ":" + std::to_string(port);
+  const auto v = static_cast<std::uint32_t>(std::stoul(ip, nullptr, 16));  // network order read as little-endian
+  return std::to_string(v & 0xFFU) + "." + std::to_string((v >> 8U) & 0xFFU) + "." + std::to_string((v >> 16U) & 0xFFU) +
+         "." + std::to_string(v >> 24U) + ":" + std::to_string(port);
+}
+
+std::vector<InetSocket> inet_sockets(pid_t pid) {
+  std::set<std::string> inodes;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator("/proc/" + std::to_string(pid) + "/fd", ec)) {
+    const auto target = fs::read_symlink(e.path(), ec).string();
+    if (target.rfind("socket:[", 0) == 0) inodes.insert(target.substr(8, target.size() - 9));
+  }
+  std::vector<InetSocket> out;
+  for (const char* proto : {"tcp", "udp", "tcp6", "udp6"}) {
+    std::istringstream in(read_text("/proc/" + std::to_string(pid) + "/net/" + proto));
+    std::string line;
+    std::getline(in, line);  // header
+    while (std::getline(in, line)) {
+      std::istringstream f(line);
+      std::string sl, local, remote, st, queues, timer, retr, uid, timeout, inode;
+      f >> sl >> local >> remote >> st >> queues >> timer >> retr >> uid >> timeout >> inode;
+      if (inodes.count(inode) == 0) continue;
+      out.push_back(InetSocket{proto, decode_address(local), decode_address(remote), std::stoi(st, nullptr, 16)});
+    }
+  }
+  return out;
+}
+
 /// The planner's signed-distance grid fettled builds for the recipe (~45 s on 2 cores) is kept
 /// in the build tree between the tests of this file and between runs: it is keyed by the
 /// golden samples and the settings, so a stale copy is rejected by fettled (with a warning),
@@ -150,6 +192,9 @@ class Fettled : public ::testing::Test {
     posix_spawn_file_actions_init(&fa);
     posix_spawn_file_actions_addopen(&fa, 1, log.c_str(), O_WRONLY | O_CREAT | (append ? O_APPEND : O_TRUNC), 0644);
     posix_spawn_file_actions_adddup2(&fa, 1, 2);
+    // Not the simulated cell's sockets of this process (Asio's are not close-on-exec): fettled
+    // gets what systemd would give it, stdin/stdout/stderr.
+    posix_spawn_file_actions_addclosefrom_np(&fa, 3);
     std::vector<std::string> args{exe, "--config", config, "--allow-root"};
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
@@ -499,6 +544,38 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
       EXPECT_EQ(c.value("result", ""), "INTERRUPTED") << c.dump();
     }
   EXPECT_TRUE(shown) << kill_id << " not in `fettle cycles`: " << listed.dump();
+  EXPECT_TRUE(alive()) << tail_log();
+}
+
+// D: the attack surface of a running, connected fettled (docs/security.md): no TCP port listens,
+// every TCP connection goes to a configured peer (PLC, robot, socketcand), and the camera's UDP
+// sockets are bound to the camera's network (127.0.0.1 here), not to every interface.
+TEST_F(Fettled, D_ListensOnNoTcpPortAndTalksOnlyToItsConfiguredPeers) {
+  const std::string socket = (dir_ / "fettled.sock").string();
+  ASSERT_TRUE(wait_until([&] { return run_output((kBin / "fettle").string() + " status --socket " + socket + " --json 2>/dev/null").find("\"state\"") != std::string::npos; }, 300s))
+      << tail_log();
+  ASSERT_TRUE(to_execute());  // every link is up
+  const std::set<std::string> peers{"127.0.0.1:" + std::to_string(cell_->plc_port()),
+                                    "127.0.0.1:" + std::to_string(cell_->robot_port()),
+                                    "127.0.0.1:" + std::to_string(cell_->spindle_port())};
+  const auto sockets = inet_sockets(pid_);
+  std::set<std::string> connected;
+  std::size_t udp = 0;
+  for (const auto& s : sockets) {
+    SCOPED_TRACE(s.text());
+    if (s.proto.rfind("tcp", 0) == 0) {
+      EXPECT_NE(s.state, 10) << "fettled listens on a TCP port";
+      if (s.state == 1) {
+        EXPECT_EQ(peers.count(s.remote), 1U) << "a TCP connection to something not in the cell file";
+        connected.insert(s.remote);
+      }
+    } else {
+      ++udp;
+      EXPECT_EQ(s.local.rfind("127.0.0.1:", 0), 0U) << "a UDP socket bound beyond the camera's network";
+    }
+  }
+  EXPECT_EQ(connected, peers) << "fettled should be connected to the PLC, the robot and the spindle's socketcand";
+  EXPECT_GT(udp, 0U) << "the camera link (GigE Vision, UDP) should be open";
   EXPECT_TRUE(alive()) << tail_log();
 }
 
