@@ -285,6 +285,27 @@ TEST_F(RobotLinkTest, StopWhileIdleIsAcknowledged) {
   EXPECT_EQ(link_->state(), RobotState::ready);
 }
 
+// An abort sends a quick STOP and then waits for the robot to stop: the second stop() joins
+// the first and both get the ACK.
+TEST_F(RobotLinkTest, ASecondStopWhileOneIsPendingGetsTheSameAck) {
+  sim_.reset();
+  speedup_ = 1.0;
+  start_sim(0);
+  connect_ready();
+  upload(make_trajectory(40, 4, 20.0));
+  Outcome run, first, second;
+  link_->run(run.handler());
+  ASSERT_TRUE(run_until([&] { return progress_.size() >= 2; }));
+  link_->stop(first.handler());
+  link_->stop(second.handler());
+  ASSERT_TRUE(run_until([&] { return first.done() && second.done() && run.done(); }));
+  EXPECT_TRUE(first.ok()) << first.code();
+  EXPECT_TRUE(second.ok()) << second.code();
+  EXPECT_EQ(run.code(), "robot.stopped");
+  EXPECT_EQ(link_->state(), RobotState::ready);
+  EXPECT_EQ(sim_->stats().trajectories_halted, 1);
+}
+
 TEST_F(RobotLinkTest, RequestsOutOfStateFailLocally) {
   connect_ready();
   Outcome run;

@@ -404,12 +404,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     if (rs == drivers::RobotState::disconnected || rs == drivers::RobotState::connecting ||
         rs == drivers::RobotState::faulted || rs == drivers::RobotState::ready)
       co_return;
-    if (rs == drivers::RobotState::stopping) {  // a quick STOP is on its way: wait for its ACK
-      for (int i = 0; i < (cell.robot.reply_timeout_ms + 500) / 20 && robot->state() == drivers::RobotState::stopping; ++i)
-        co_await sleep(milliseconds(20));
-      if (robot->state() == drivers::RobotState::stopping) log->warn("robot STOP not acknowledged in time");
-      co_return;
-    }
+    // In state stopping (the quick STOP of an abort) this waits for that STOP's ACK.
     auto st = co_await await_op<Status>(nullptr, [this](std::function<void(Status)> done) { robot->stop(done); },
                                         milliseconds(cell.robot.reply_timeout_ms + 500));
     if (!st || !*st) log->warn("robot STOP not acknowledged: {}", st ? st->error().message : "timeout");

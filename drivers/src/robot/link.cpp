@@ -611,7 +611,12 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
       return post_fail(std::move(done), Error{"robot.state", "cannot stop while the HELLO is pending"});
     }
     if (stop_done_ || (pending_ && pending_->req == Req::stop)) {
-      return post_fail(std::move(done), Error{"robot.state", "a STOP is already pending"});
+      // A STOP is on its way: this caller gets its ACK (or its failure) too; one STOP on the wire.
+      stop_done_ = [first = std::move(stop_done_), done = std::move(done)](Status s) mutable {
+        if (first) first(s);
+        if (done) done(std::move(s));
+      };
+      return;
     }
     const Error stopped = err("robot.stopped", "stopped on request before the robot finished");
     if (state_ != RobotState::stopping) state_before_stop_ = state_;

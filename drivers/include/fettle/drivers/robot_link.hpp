@@ -76,6 +76,7 @@ class RobotLink {
   /// robot.fault.<code>, robot.stopped, robot.run_timeout, robot.nak.<code>, link errors.
   void run(Handler done);
   /// Stops motion / aborts an upload at any time while connected. `done` gets ok at the ACK.
+  /// While a STOP is pending, another stop() sends nothing and completes with that STOP.
   void stop(Handler done);
   /// Clears a robot fault (RESET): faulted → ready.
   void reset(Handler done);
