@@ -32,6 +32,13 @@ class SpindleDriveTest : public ::testing::Test {
     const Status s = await(io, [&](auto h) { master->start(h); });
     ASSERT_TRUE(s.ok()) << s.error().message;
   }
+  /// Heartbeats every 30 ms, lost after 120 ms: heartbeat tests finish quickly.
+  static SpindleOptions fast_heartbeats() {
+    SpindleOptions o;
+    o.heartbeat_producer_ms = 30;
+    o.heartbeat_timeout_ms = 120;
+    return o;
+  }
   bool saw(SpindleEvent::Kind k) const {
     return std::any_of(events.begin(), events.end(), [k](const auto& e) { return e.kind == k; });
   }
@@ -236,9 +243,7 @@ TEST_F(SpindleDriveTest, OvertemperatureWhileIdleIsReportedAsAFaultEvent) {
 }
 
 TEST_F(SpindleDriveTest, DriveHeartbeatLossIsAFault) {
-  SpindleOptions o;
-  o.heartbeat_producer_ms = 30;
-  o.heartbeat_timeout_ms = 120;
+  const SpindleOptions o = fast_heartbeats();
   make_started(o);
   drive->set_heartbeat_enabled(false);
   ASSERT_TRUE(run_until(io, [&] { return saw(SpindleEvent::Kind::heartbeat_lost); }));
@@ -252,9 +257,7 @@ TEST_F(SpindleDriveTest, DriveHeartbeatLossIsAFault) {
 }
 
 TEST_F(SpindleDriveTest, DriveFaultsWhenTheMastersHeartbeatStops) {
-  SpindleOptions o;
-  o.heartbeat_producer_ms = 30;
-  o.heartbeat_timeout_ms = 120;
+  const SpindleOptions o = fast_heartbeats();
   make_started(o);
   ASSERT_TRUE(await(io, [&](auto h) { master->spin_up(3000, h); }).ok());
   bus->set_connected(false);  // cable pulled: both sides lose each other's heartbeat
@@ -268,9 +271,7 @@ TEST_F(SpindleDriveTest, DriveFaultsWhenTheMastersHeartbeatStops) {
 // fettled restarted or killed: the drive faulted on the lost heartbeat (0x8130). The new master
 // reads 0x603F at start, sees that its own absence was the cause and resets the fault.
 TEST_F(SpindleDriveTest, ARestartedMasterResetsTheHeartbeatFaultItsAbsenceCaused) {
-  SpindleOptions o;
-  o.heartbeat_producer_ms = 30;
-  o.heartbeat_timeout_ms = 120;
+  const SpindleOptions o = fast_heartbeats();
   make_started(o);
   ASSERT_TRUE(await(io, [&](auto h) { master->spin_up(3000, h); }).ok());
   master.reset();  // the process is gone: no more heartbeats

@@ -514,15 +514,8 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
       me->log->warn("drive node {} was in fault {} when it was started: it lost the master's heartbeat while "
                     "fettled was not running; resetting that fault",
                     me->opt.node_id, hex(kHeartbeatErrorCode, 4) + " " + emcy_code_text(kHeartbeatErrorCode));
-      me->sdo_download(od::controlword, 0, controlword::disable_voltage, 2, [me, d = std::move(d)](Status s) mutable {
-        if (!s) return d(std::move(s));
-        me->sdo_download(od::controlword, 0, controlword::fault_reset, 2, [me, d = std::move(d)](Status s2) mutable {
-          if (!s2) return d(std::move(s2));
-          me->sdo_download(od::controlword, 0, controlword::disable_voltage, 2, std::move(d));
-        });
-      });
+      me->chain(me->fault_reset_steps(), 0, std::move(d));
     });
-    steps.push_back(read_statusword_step());
     steps.push_back([me](Done d) {
       me->st.configured = true;
       me->log->info("drive node {} operational, state '{}', rated current {:.2f} A", me->opt.node_id,
@@ -629,6 +622,18 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     run(*gen, std::move(steps));
   }
 
+  /// CiA 402 fault reset: a rising edge of controlword bit 7, then "switch on disabled".
+  std::vector<Step> fault_reset_steps() {
+    std::vector<Step> steps;
+    steps.push_back(sdo_write_step(od::controlword, 0, controlword::disable_voltage, 2));  // bit 7 low first
+    steps.push_back(sdo_write_step(od::controlword, 0, controlword::fault_reset, 2));
+    steps.push_back(read_statusword_step());
+    steps.push_back(wait_step([](const SpindleStatus& x) { return x.state == DriveState::switch_on_disabled; },
+                              opt.step_timeout_ms, "state 'switch on disabled' after the fault reset"));
+    steps.push_back(sdo_write_step(od::controlword, 0, controlword::disable_voltage, 2));
+    return steps;
+  }
+
   void fault_reset(Done done) {
     if (!st.configured && !st.fault)
       return done(make_error("spindle.not_started", "spindle: fault_reset before start() completed"));
@@ -638,14 +643,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     auto gen = begin_op(std::move(done), false);
     if (!gen) return;
     const auto me = shared_from_this();
-    std::vector<Step> steps;
-    // A rising edge of bit 7: clear it first.
-    steps.push_back(sdo_write_step(od::controlword, 0, controlword::disable_voltage, 2));
-    steps.push_back(sdo_write_step(od::controlword, 0, controlword::fault_reset, 2));
-    steps.push_back(read_statusword_step());
-    steps.push_back(wait_step([](const SpindleStatus& x) { return x.state == DriveState::switch_on_disabled; },
-                              opt.step_timeout_ms, "state 'switch on disabled' after the fault reset"));
-    steps.push_back(sdo_write_step(od::controlword, 0, controlword::disable_voltage, 2));
+    std::vector<Step> steps = fault_reset_steps();
     steps.push_back([me](Done d) {
       me->log->info("fault reset: drive in '{}'", canopen::to_string(me->st.state));
       me->st.fault.reset();
