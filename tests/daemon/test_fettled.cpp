@@ -257,6 +257,13 @@ class Fettled : public ::testing::Test {
     return "fettled log (tail):\n" + text.substr(text.size() > 4000 ? text.size() - 4000 : 0);
   }
 
+  /// fettled answers `fettle status` on its control socket (it is configured and serving).
+  static bool answers() {
+    const std::string socket = (dir_ / "fettled.sock").string();
+    return alive() && run_output((kBin / "fettle").string() + " status --socket " + socket + " --json 2>/dev/null")
+                              .find("\"state\"") != std::string::npos;
+  }
+
   static State state() { return cell_->plc().fettle.state; }
   static int fault_code() { return cell_->plc().fettle.fault_code; }
 
@@ -472,11 +479,7 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
   const fs::path journal = dir_ / "state/journal.jsonl";
   const std::string socket = (dir_ / "fettled.sock").string();
   const std::string fettle = (kBin / "fettle").string();
-  // fettled answers on its control socket once it is configured
-  const auto up = [&] {
-    return alive() && run_output(fettle + " status --socket " + socket + " --json 2>/dev/null").find("\"state\"") != std::string::npos;
-  };
-  ASSERT_TRUE(wait_until(up, 300s)) << tail_log();  // the first start builds the planning grid
+  ASSERT_TRUE(wait_until(answers, 300s)) << tail_log();  // the first start builds the planning grid
 
   // --- SIGTERM mid-run ---
   ASSERT_TRUE(to_execute());
@@ -510,7 +513,7 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
   // one for what is on the fixture once in Execute, so the next casting goes on first.
   cell_->load(12);
   spawn_fettled(true);
-  ASSERT_TRUE(wait_until([&] { return up(); }, 120s)) << tail_log();
+  ASSERT_TRUE(wait_until(answers, 120s)) << tail_log();
   ASSERT_TRUE(to_execute());
   const auto running = [&] {
     for (const auto& [id, result] : journal_results(journal))
@@ -533,7 +536,7 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
   EXPECT_EQ(journal_results(journal)[kill_id], "") << "nothing can write after SIGKILL";
 
   spawn_fettled(true);
-  ASSERT_TRUE(wait_until([&] { return up(); }, 120s)) << tail_log();
+  ASSERT_TRUE(wait_until(answers, 120s)) << tail_log();
   EXPECT_EQ(journal_results(journal)[kill_id], "INTERRUPTED") << read_text(journal);
   const auto listed = nlohmann::json::parse(run_output(fettle + " cycles --socket " + socket + " --json"), nullptr, false);
   ASSERT_TRUE(listed.is_array()) << listed.dump();
@@ -551,9 +554,7 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
 // every TCP connection goes to a configured peer (PLC, robot, socketcand), and the camera's UDP
 // sockets are bound to the camera's network (127.0.0.1 here), not to every interface.
 TEST_F(Fettled, D_ListensOnNoTcpPortAndTalksOnlyToItsConfiguredPeers) {
-  const std::string socket = (dir_ / "fettled.sock").string();
-  ASSERT_TRUE(wait_until([&] { return run_output((kBin / "fettle").string() + " status --socket " + socket + " --json 2>/dev/null").find("\"state\"") != std::string::npos; }, 300s))
-      << tail_log();
+  ASSERT_TRUE(wait_until(answers, 300s)) << tail_log();
   ASSERT_TRUE(to_execute());  // every link is up
   const std::set<std::string> peers{"127.0.0.1:" + std::to_string(cell_->plc_port()),
                                     "127.0.0.1:" + std::to_string(cell_->robot_port()),

@@ -106,13 +106,13 @@ Status Records::append(const json& line) {
   while (!pending_.empty()) {
     if (auto st = append_now(pending_.front()); !st) {
       if (pending_.size() > 100000) {  // a disk full for days: keep the newest, say so
-        pending_.erase(pending_.begin());
+        pending_.pop_front();
         log::get("records")->error("journal: dropped the oldest line waiting for disk space (100000 waiting)");
       }
       return Error{st.error().code, st.error().message + " (" + std::to_string(pending_.size()) +
                                         " journal line(s) kept in memory until there is room)"};
     }
-    pending_.erase(pending_.begin());
+    pending_.pop_front();
   }
   return {};
 }

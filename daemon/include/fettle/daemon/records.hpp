@@ -14,9 +14,11 @@
 // cycle; the journal keeps its lines. A full disk never stops a cycle: before each cycle the
 // oldest records are deleted until [records] min_free_mb is free; what still cannot be written
 // is a warning (warning()), and journal lines that could not be appended are kept in memory and
-// appended, in order, as soon as there is room again. Not thread-safe: use from the daemon's event loop, except
-// write_file() which only touches the cycle's own directory and may run on a worker.
+// appended, in order, as soon as there is room again. Not thread-safe: use from the daemon's
+// event loop, except write_file() which only touches the cycle's own directory and may run on
+// a worker.
 #include <cstdint>
+#include <deque>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -93,7 +95,7 @@ class Records {
   std::vector<CycleSummary> cycles_;  ///< journal order (oldest first)
   std::uint64_t sequence_ = 0;
   std::string warning_;
-  std::vector<std::string> pending_;  ///< journal lines not yet on disk (disk full), oldest first
+  std::deque<std::string> pending_;  ///< journal lines not yet on disk (disk full), oldest first
 };
 
 /// UTC now as "2026-11-30T09:15:02.123Z".
