@@ -1,7 +1,9 @@
 // The simulated cell (cell.hpp): PLC, camera, robot and spindle around one casting.
 #include "fettle/sim/cell.hpp"
 
+#include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -324,7 +326,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
   }
 
   void executed(const Trajectory& t, std::function<void()> done) {
-    if (t.points.empty()) return done();
+    if (t.points.empty() || !options.grind) return done();
     auto self = shared_from_this();
     asio::post(grinder, [self, t, done = std::move(done)] {
       self->grind_executed(t);
@@ -474,6 +476,16 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     if (dev == "robot") {
       std::string a, b;
       args >> a >> b;
+      // NAK and FAULT codes as docs/robot-protocol.md allows them: UPPER *15(UPPER / DIGIT / "_")
+      const std::string& code = what == "nak" ? b : what == "fault-at" ? b : std::string();
+      const bool code_ok = code.empty() || (code.size() <= 16 && std::isupper(static_cast<unsigned char>(code[0])) != 0 &&
+                                            std::all_of(code.begin(), code.end(), [](char c) {
+                                              return std::isupper(static_cast<unsigned char>(c)) != 0 ||
+                                                     std::isdigit(static_cast<unsigned char>(c)) != 0 || c == '_';
+                                            }));
+      if (!code_ok)
+        return Error{"sim.cell_command", "'" + line + "': the code '" + code +
+                                             "' is not a protocol code (an upper-case letter, then up to 15 of A-Z 0-9 _)"};
       asio::post(io, [this, what, a, b] {
         auto f = robot->faults();
         if (what == "nak") {

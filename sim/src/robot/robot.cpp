@@ -177,6 +177,12 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
     if (st_ == St::receiving) st_ = St::discarding;
   }
 
+  /// A NAK for a point outside the robot's limits (counted apart: Fettle validates before upload).
+  void limit_nak(int ref, std::string_view code, const std::string& text) {
+    ++server_->stats_.limit_naks;
+    nak(ref, code, text);
+  }
+
   void flush() {
     if (writing_ || closed_) return;
     if (outq_.empty()) {
@@ -388,13 +394,13 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
     for (std::size_t i = 0; i < 3; ++i) {
       const double v = *proto::to_double(l.fields[i + 1]);
       if (v < env.min_mm[i] || v > env.max_mm[i])
-        return nak(l.seq, proto::nak::envelope, std::string("point ") + l.fields[0] + " " + "xyz"[i] + " " +
+        return limit_nak(l.seq, proto::nak::envelope, std::string("point ") + l.fields[0] + " " + "xyz"[i] + " " +
                                                     l.fields[i + 1] + " mm");
     }
     if (*proto::to_double(l.fields[4]) > env.max_speed_mm_s)
-      return nak(l.seq, proto::nak::speed, "point " + l.fields[0] + " " + l.fields[4] + " mm/s");
+      return limit_nak(l.seq, proto::nak::speed, "point " + l.fields[0] + " " + l.fields[4] + " mm/s");
     if (num(l.fields[5]) > env.max_spindle_rpm)
-      return nak(l.seq, proto::nak::spindle, "point " + l.fields[0] + " " + l.fields[5] + " rpm");
+      return limit_nak(l.seq, proto::nak::spindle, "point " + l.fields[0] + " " + l.fields[5] + " rpm");
     pending_p_ = l;
     pending_p_text_ = payload_of(text);
   }
@@ -406,7 +412,7 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
     if (!pt) return nak(l.seq, proto::nak::order, pt.error().message);
     const double norm = pt->T_base_tool.orientation.coeffs().norm();
     if (std::abs(norm - 1.0) > proto::kQuatNormTolerance)
-      return nak(l.seq, proto::nak::quat, "point " + l.fields[0] + " |q| = " + proto::fixed(norm, 6));
+      return limit_nak(l.seq, proto::nak::quat, "point " + l.fields[0] + " |q| = " + proto::fixed(norm, 6));
     points_.push_back(*pt);
     payloads_.emplace_back(pending_p_text_, payload_of(text));
     pending_p_.reset();
@@ -442,6 +448,7 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
     if (num(l.fields[0]) != id_) return nak(l.seq, proto::nak::id, "trajectory " + std::to_string(id_) + " is loaded");
     reply_ack(l.seq);
     st_ = St::running;
+    ++server_->stats_.runs_started;
     exec_idx_ = 0;
     exec_segment_ = -1;
     executed_.clear();

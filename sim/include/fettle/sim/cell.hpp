@@ -38,6 +38,10 @@ struct CellSimOptions {
   int recipe_id = 0;                  ///< 0 = the first [[cell.recipes]] entry
   bool auto_start = true;             ///< send Reset / Start when fettled is Stopped / Idle / Complete
   double robot_speedup = 10.0;        ///< robot execution speed-up (1 = real time)
+  /// false: runs take their (accelerated) time but remove no material, for long soak runs where
+  /// the grinding simulation (15-30 s of CPU per casting) would dominate; a verification scan
+  /// then sees the casting unground.
+  bool grind = true;
   double slide_speed_mm_s = 500.0;
 };
 

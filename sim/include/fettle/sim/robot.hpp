@@ -58,7 +58,11 @@ struct RobotSimStats {
   int connections = 0;        ///< accepted connections
   int closed_for_garbage = 0; ///< connections closed for bad input
   int naks = 0;
+  /// NAKs for a point outside the robot's limits (ENVELOPE, SPEED, SPINDLE, QUAT), never
+  /// injected: a trajectory that reached the robot without passing Fettle's validation.
+  int limit_naks = 0;
   int trajectories_received = 0;
+  int runs_started = 0;           ///< RUNs accepted
   int trajectories_executed = 0;  ///< runs that ended with DONE
   int trajectories_halted = 0;    ///< runs stopped before their end (STOP, RESET, connection lost)
   std::string last_halt_reason;   ///< "STOP", "RESET" or "connection closed"
