@@ -369,6 +369,11 @@ struct FaultScenario {
 
 TEST_F(Fettled, B_EveryFaultEndsInItsStateAndTheCellRecovers) {
   ASSERT_TRUE(reaches(State::stopped, 300s));
+  // The simulated robot injects only codes the protocol allows (a malformed FAULT line would
+  // be a link fault, 303, not the robot fault 302 the injection means).
+  const auto bad_code = cell_->inject("robot fault-at 40 E-STOP");
+  ASSERT_FALSE(bad_code);
+  EXPECT_NE(bad_code.error().message.find("not a protocol code"), std::string::npos) << bad_code.error().message;
   // Seeds differ from A's so a cached result cannot hide anything. The waits: processing takes
   // ~15-30 s at 1032x772 under load, the robot's run starts after it.
   const std::vector<FaultScenario> scenarios{
@@ -379,6 +384,16 @@ TEST_F(Fettled, B_EveryFaultEndsInItsStateAndTheCellRecovers) {
          ASSERT_TRUE(wait_until([&] { return cell_->plc().cycles_accepted > 0 && cell_->plc().fettle.slide_target != 0; }, 30s))
              << tail_log();
          plc("drop");
+       }},
+      // The slide already in fault when the cycle commands it: no new slide state arrives, so
+      // fettled must read the fault it already knows (it waited out travel_timeout_ms and
+      // reported 104 before; found by the soak).
+      {"slide faulted before the cycle", 105, State::held, 10s,
+       [] {
+         cell_->load(3);
+         plc("slide-fault on");
+         std::this_thread::sleep_for(200ms);  // the PLC's slide state reaches fettled
+         cell_->request();
        }},
       {"camera timeout", 201, State::held, 90s,
        [] {
@@ -447,10 +462,10 @@ TEST_F(Fettled, B_EveryFaultEndsInItsStateAndTheCellRecovers) {
     kinds.insert(result);
     EXPECT_TRUE(fs::exists(dir_ / "state/cycles" / id / "report.json")) << id;
   }
-  EXPECT_EQ(kinds.count("FAULT"), 5U) << journal;
+  EXPECT_EQ(kinds.count("FAULT"), 6U) << journal;
   EXPECT_EQ(kinds.count("ABORTED"), 2U) << journal;
   EXPECT_EQ(kinds.count("OK") + kinds.count("NOK"), 1U) << journal;
-  EXPECT_EQ(results.size(), 8U) << journal;
+  EXPECT_EQ(results.size(), 9U) << journal;
   const auto report = nlohmann::json::parse(read_text(dir_ / "state/cycles" / results.rbegin()->first / "report.json"));
   EXPECT_TRUE(report.contains("steps"));
 }

@@ -428,10 +428,18 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     for (int i = 0; i < 200 && cycle; ++i) co_await sleep(milliseconds(50));
   }
 
+  /// Sends the slide home and waits for it, at most travel_timeout_ms; a faulted slide cannot
+  /// move (it stays where it is until the PLC clears its fault), so that is not waited out.
   asio::awaitable<void> slide_home_best_effort() {
     if (slide.status == plc::SlideStatus::at_home) co_return;
+    if (slide.status == plc::SlideStatus::fault) {
+      log->warn("the slide is in fault at position {}: not sent home (the PLC must clear its fault)", slide.position);
+      co_return;
+    }
     (void)plc_link->command_slide(0);
-    for (int i = 0; i < cell.slide.travel_timeout_ms / 50 && slide.status != plc::SlideStatus::at_home; ++i)
+    for (int i = 0; i < cell.slide.travel_timeout_ms / 50 && plc_up && slide.status != plc::SlideStatus::at_home &&
+                    slide.status != plc::SlideStatus::fault;
+         ++i)
       co_await sleep(milliseconds(50));
   }
 
@@ -598,6 +606,10 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     c.begin(target == 0 ? "slide home" : "slide to " + std::to_string(target));
     publish_state();
     if (!plc_up) co_return fail(c, Fault{FaultCode::plc_link_lost, "the PLC link is down", c.step});
+    // A slide already in fault sends no new state when commanded: without this the cycle would
+    // wait out travel_timeout_ms and report a timeout (found by the soak).
+    if (slide.status == plc::SlideStatus::fault)
+      co_return fail(c, Fault{FaultCode::slide_fault, "the PLC reports a slide fault (before the slide was commanded)", c.step});
     auto p = std::make_shared<Pending<Status>>(io);
     slide_wait = p;
     slide_target = target;
