@@ -501,11 +501,13 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
         } else if (what == "drop") {
           robot->drop_client();
           return;
+        } else if (what == "clear") {
+          f = RobotFaults{};
         }
         robot->set_faults(f);
       });
       if (what != "nak" && what != "disconnect-at-chunk" && what != "fault-at" && what != "ignore-pings" &&
-          what != "drop")
+          what != "drop" && what != "clear")
         return bad();
       return {};
     }

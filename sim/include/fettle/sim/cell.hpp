@@ -82,7 +82,7 @@ class CellSim {
   ///   plc <line of PlcSimulator::apply>   e.g. "plc drop", "plc reset", "plc freeze on"
   ///   camera drop N | camera stall MS | camera loss N RATIO
   ///   robot nak VERB CODE | robot disconnect-at-chunk K | robot fault-at POINT [CODE] | robot drop
-  ///   robot ignore-pings on|off
+  ///   robot ignore-pings on|off | robot clear (disarms every robot fault not yet fired)
   ///   spindle fault overcurrent|overtemperature|heartbeat_loss
   ///   part load SEED | part wrong SEED | part empty | part request
   ///   auto on|off
