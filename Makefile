@@ -8,10 +8,12 @@ CMAKE_ARGS ?=
 ASAN_BUILD_DIR ?= build-asan
 FUZZ_BUILD_DIR ?= build-fuzz
 FUZZ_SECONDS ?= 300
+SOAK_CYCLES ?= 500
+SOAK_FAULT_RATE ?= 0.3
 # ctest arguments for test-asan, e.g. ASAN_CTEST_ARGS="-LE slow" in CI.
 ASAN_CTEST_ARGS ?=
 
-.PHONY: all deps configure build test test-unit test-asan fuzz demo bench accuracy accuracy-vision clean
+.PHONY: all deps configure build test test-unit test-asan fuzz soak demo bench accuracy accuracy-vision clean
 
 all: build
 
@@ -48,6 +50,12 @@ fuzz: deps
 	      -DFETTLE_BUILD_BENCH=OFF $(CMAKE_ARGS)
 	cmake --build $(FUZZ_BUILD_DIR) -j $(JOBS) --target fuzzers
 	tests/fuzz/run $(FUZZ_BUILD_DIR) $(FUZZ_SECONDS)
+
+# fettled through SOAK_CYCLES cycles on the simulated cell with random device faults
+# (fettle-sim soak; ~5 s a cycle on 2 cores). Results in $(BUILD_DIR)/soak/soak.json.
+soak: build
+	$(BUILD_DIR)/bin/fettle-sim soak --config config/cell.sim.toml --cycles $(SOAK_CYCLES) \
+	  --fault-rate $(SOAK_FAULT_RATE) --out $(BUILD_DIR)/soak
 
 demo: build
 	@scripts/demo $(BUILD_DIR)
