@@ -498,6 +498,7 @@ class Soak {
     const int runs_before = cell_->robot_stats().runs_started;
     const int accepted_before = cell_->plc().cycles_accepted;
     const int ended_before = journal_->ended();
+    const int uploads_before = journal_->uploads();
     if (kind != nullptr) {
       o.fault = kind->name;
       o.device = kind->device;
@@ -548,6 +549,11 @@ class Soak {
       for (const auto& line : kind->undo)
         if (auto st = cell_->inject(line); !st) o.problems.push_back("undo '" + line + "': " + st.error().message);
     }
+    // A robot fault armed before the request acts only on an upload: a cycle that ended before
+    // one (fettled refusing the casting, say) never reached it.
+    if (kind != nullptr && kind->device == "robot" && kind->when == W::before_request && journal_->uploads() == uploads_before)
+      o.not_injected = "the cycle ended before an upload (" +
+                       (o.plc_fault_code ? "fault " + std::to_string(o.plc_fault_code) : "result " + o.plc_result) + ")";
     // A one-shot robot fault the cycle never reached must not fire in a later one.
     (void)cell_->inject("robot clear");
     if (kind != nullptr && o.not_injected.empty()) {
