@@ -165,3 +165,15 @@ TEST_F(CloudBadInput, PcdHeadersThatCrashPclAreRefusedFirst) {
     EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("PCD header"))) << f;
   }
 }
+
+TEST_F(CloudBadInput, BinaryPcdWhoseLayoutDoesNotFitItsDataIsRefused) {
+  // fuzz_cloud (CI, 2026-12-01): a binary PCD with normal fields whose header lies about the
+  // data; PCL's PCDReader accepts it and fromPCLPointCloud2 read past the end of the buffer
+  // (AddressSanitizer: heap-buffer-overflow). Now the layout is checked against the data first.
+  const fs::path reproducer = fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud/pcd-header-lies-about-data-size";
+  ASSERT_TRUE(fs::exists(reproducer)) << reproducer;
+  std::ifstream in(reproducer, std::ios::binary);
+  const std::string input(std::istreambuf_iterator<char>(in), {});
+  const auto f = write("lies.pcd", input.substr(1));  // fuzz_cloud's first byte picks the extension
+  EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("bytes of point data")));
+}

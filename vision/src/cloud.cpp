@@ -12,6 +12,7 @@
 #include <string>
 
 #include <pcl/PCLPointCloud2.h>
+#include <pcl/common/io.h>
 #include <pcl/conversions.h>
 #include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
@@ -221,6 +222,19 @@ Cloud load_cloud(const std::filesystem::path& file) {
     throw UserError(file.string() + ": the file has no x, y, z fields");
   const std::size_t total = static_cast<std::size_t>(blob.width) * blob.height;
   if (total == 0) throw UserError(file.string() + ": the point cloud is empty (0 points)");
+  // The layout the header announces must fit the data read; PCL's conversions trust it (a
+  // binary PCD whose header lies made fromPCLPointCloud2 read past the buffer; fuzz_cloud).
+  for (const auto& f : blob.fields) {
+    const std::size_t size = pcl::getFieldSize(f.datatype);
+    if (size == 0 || static_cast<std::size_t>(f.offset) + size * std::max<std::size_t>(f.count, 1) > blob.point_step)
+      throw UserError(file.string() + ": field '" + f.name + "' does not fit in a point of " +
+                      std::to_string(blob.point_step) + " bytes (corrupt header)");
+  }
+  if (blob.row_step < static_cast<std::size_t>(blob.width) * blob.point_step ||
+      blob.data.size() / std::max<std::size_t>(blob.row_step, 1) < blob.height)
+    throw UserError(file.string() + ": the header announces " + std::to_string(blob.width) + " x " +
+                    std::to_string(blob.height) + " points of " + std::to_string(blob.point_step) + " bytes, the file holds " +
+                    std::to_string(blob.data.size()) + " bytes of point data (truncated or corrupt)");
 
   Cloud out;
   const bool normals = has_field(blob, "normal_x") && has_field(blob, "normal_y") && has_field(blob, "normal_z");
