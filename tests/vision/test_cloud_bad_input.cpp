@@ -177,3 +177,14 @@ TEST_F(CloudBadInput, BinaryPcdWhoseLayoutDoesNotFitItsDataIsRefused) {
   const auto f = write("lies.pcd", input.substr(1));  // fuzz_cloud's first byte picks the extension
   EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("bytes of point data")));
 }
+
+TEST_F(CloudBadInput, PcdDataLineWithoutItsValueIsAUserError) {
+  // PCL 1.13's PCDReader throws std::out_of_range on a DATA line without its value: it
+  // terminated the program (found by fuzz_cloud; reproducer in tests/fuzz/regressions/cloud).
+  const fs::path reproducer = fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud/pcd-data-line-without-value";
+  ASSERT_TRUE(fs::exists(reproducer)) << reproducer;
+  std::ifstream in(reproducer, std::ios::binary);
+  const std::string input(std::istreambuf_iterator<char>(in), {});
+  const auto f = write("data_without_value.pcd", input.substr(1));  // the first byte picks the extension
+  EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("corrupt header")));
+}

@@ -208,14 +208,20 @@ Cloud load_cloud(const std::filesystem::path& file) {
   }
   pcl::PCLPointCloud2 blob;
   int rc = -1;
-  if (ext == ".pcd") {
-    pcl::PCDReader reader;
-    rc = reader.read(file.string(), blob);
-  } else if (ext == ".ply") {
-    pcl::PLYReader reader;
-    rc = reader.read(file.string(), blob);
-  } else {
+  if (ext != ".pcd" && ext != ".ply")
     throw UserError(file.string() + ": unknown point-cloud format '" + ext + "' (use .ply or .pcd)");
+  try {
+    if (ext == ".pcd") {
+      pcl::PCDReader reader;
+      rc = reader.read(file.string(), blob);
+    } else {
+      pcl::PLYReader reader;
+      rc = reader.read(file.string(), blob);
+    }
+  } catch (const std::exception& e) {
+    // PCL 1.13's readers throw on some headers, e.g. std::out_of_range for a DATA line
+    // without its value (found by fuzz_cloud).
+    throw UserError(file.string() + ": cannot read the point cloud, corrupt header (" + e.what() + ")");
   }
   if (rc < 0) throw UserError(file.string() + ": cannot read the point cloud (corrupt or not a PLY/PCD file)");
   if (!has_field(blob, "x") || !has_field(blob, "y") || !has_field(blob, "z"))
