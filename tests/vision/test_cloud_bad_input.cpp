@@ -159,7 +159,8 @@ TEST_F(CloudBadInput, PcdHeadersThatCrashPclAreRefusedFirst) {
   const auto no_size = write("no_size.pcd", std::string(good).replace(good.find("SIZE"), 4, ",IZE"));
   const auto binary_line = write("binary_line.pcd", std::string(good).insert(good.find("VERSION"), std::string("\0\0HB\0\n", 6)));
   const auto mismatch = write("mismatch.pcd", std::string(good).replace(good.find("TYPE F F F"), 10, "TYPE F F"));
-  for (const auto& f : {no_size, binary_line, mismatch}) {
+  const auto count0 = write("count0.pcd", std::string(good).replace(good.find("COUNT 1 1 1"), 11, "COUNT 0 1 1"));
+  for (const auto& f : {no_size, binary_line, mismatch, count0}) {
     const auto out = load_in_child(f);
     EXPECT_TRUE(out.how == ChildOutcome::How::returned) << f.filename() << ": " << out.detail;
     EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("PCD header"))) << f;

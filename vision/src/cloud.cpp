@@ -135,10 +135,12 @@ std::string implausible_header(const std::filesystem::path& file, bool pcd) {
     const bool sizes_ok = std::all_of(sizes.begin(), sizes.end(), [](auto x) { return x == 1 || x == 2 || x == 4 || x == 8; });
     const bool types_ok =
         std::all_of(types.begin(), types.end(), [](const std::string& t) { return t == "I" || t == "U" || t == "F"; });
+    // COUNT 0: PCL drops the field and then crashes reading the data (fuzz_cloud).
+    const bool counts_ok = std::all_of(counts.begin(), counts.end(), [](auto x) { return x > 0; });
     if (header_complete && (fields.empty() || sizes.size() != fields.size() || types.size() != fields.size() ||
-                            (!counts.empty() && counts.size() != fields.size()) || !sizes_ok || !types_ok))
+                            (!counts.empty() && counts.size() != fields.size()) || !sizes_ok || !types_ok || !counts_ok))
       return "the PCD header's FIELDS, SIZE, TYPE and COUNT lines do not describe the same fields "
-             "(SIZE 1, 2, 4 or 8; TYPE I, U or F)";
+             "(SIZE 1, 2, 4 or 8; TYPE I, U or F; COUNT 1 or more)";
     std::uint64_t step = 0;
     for (std::size_t i = 0; i < sizes.size(); ++i)
       step += min_value_bytes(ascii, sizes[i]) * (i < counts.size() ? counts[i] : 1);
