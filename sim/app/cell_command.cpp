@@ -18,6 +18,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <tuple>
 
 #include <nlohmann/json.hpp>
 
@@ -27,6 +28,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/cell.hpp"
+#include "sim_common.hpp"
 
 namespace {
 
@@ -58,15 +60,7 @@ int run_cell(const Args& a) {
   o.auto_start = !a.manual;
   o.noise = !a.ideal;
   if (a.ephemeral) o.plc_port = o.robot_port = o.spindle_port = 0;
-  {
-    unsigned w = 0, h = 0;
-    char x = 0;
-    std::istringstream in(a.resolution);
-    if (!(in >> w >> x >> h) || x != 'x' || w < 64 || h < 48 || w > 4128 || h > 3088)
-      throw fettle::UserError("--resolution '" + a.resolution + "': expected WIDTHxHEIGHT, e.g. 1032x772");
-    o.camera_width = w;
-    o.camera_height = h;
-  }
+  std::tie(o.camera_width, o.camera_height) = fettle::sim::app::parse_resolution(a.resolution);
   fettle::sim::CellSim cell(o);
   cell.on_event([](const std::string& line) { std::cout << line << std::endl; });
   cell.start();

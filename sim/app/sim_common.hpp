@@ -4,9 +4,12 @@
 #include <cstdio>
 #include <filesystem>
 #include <optional>
+#include <sstream>
 #include <string>
+#include <utility>
 
 #include "fettle/config/load.hpp"
+#include "fettle/core/error.hpp"
 #include "fettle/sim/sim.hpp"
 
 namespace fettle::sim::app {
@@ -50,6 +53,16 @@ inline ScannerConfig scanner_config(const ScannerOptions& o, CellLimits* limits 
   c.noise.sigma_z_mm = o.noise_mm;
   c.noise.enabled = !o.no_noise;
   return c;
+}
+
+/// "WIDTHxHEIGHT" of a simulated camera's range map (--resolution); UserError naming `option` otherwise.
+inline std::pair<unsigned, unsigned> parse_resolution(const std::string& text, const std::string& option = "--resolution") {
+  unsigned w = 0, h = 0;
+  char x = 0;
+  std::istringstream in(text);
+  if (!(in >> w >> x >> h) || x != 'x' || w < 64 || h < 48 || w > 4128 || h > 3088)
+    throw UserError(option + " '" + text + "': expected WIDTHxHEIGHT from 64x48 to 4128x3088, e.g. 1032x772");
+  return {w, h};
 }
 
 /// A progress line on stderr (rewritten in place on a terminal).

@@ -42,6 +42,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -54,6 +55,7 @@
 #include "fettle/drivers/packml.hpp"
 #include "fettle/drivers/plc_registers.hpp"
 #include "fettle/sim/cell.hpp"
+#include "sim_common.hpp"
 
 extern char** environ;
 
@@ -352,13 +354,7 @@ class Soak {
     o.robot_speedup = a_.speedup;
     o.grind = false;
     o.slide_speed_mm_s = 2000.0;
-    unsigned w = 0, h = 0;
-    char x = 0;
-    std::istringstream in(a_.resolution);
-    if (!(in >> w >> x >> h) || x != 'x' || w < 64 || h < 48 || w > 4128 || h > 3088)
-      throw fettle::UserError("--resolution '" + a_.resolution + "': expected WIDTHxHEIGHT, e.g. 516x386");
-    o.camera_width = w;
-    o.camera_height = h;
+    std::tie(o.camera_width, o.camera_height) = fettle::sim::app::parse_resolution(a_.resolution);
     cell_ = std::make_unique<fettle::sim::CellSim>(o);
     cell_log_.open(a_.out / "cell.log");
     cell_->on_event([this](const std::string& line) { cell_log_ << line << "\n" << std::flush; });

@@ -257,8 +257,7 @@ Cloud load_cloud(const std::filesystem::path& file) {
     // Read float fields in place; PCL's PointNormal conversion wants a curvature field as well
     // and prints "Failed to find match for field 'curvature'" for every file without one.
     const auto at = float32_offsets(blob, std::array{"x", "y", "z", "normal_x", "normal_y", "normal_z"});
-    if (at && blob.row_step >= static_cast<std::size_t>(blob.width) * blob.point_step &&
-        blob.data.size() >= static_cast<std::size_t>(blob.height) * blob.row_step) {
+    if (at) {  // the layout fits the data (checked above)
       for (std::uint32_t r = 0; r < blob.height; ++r)
         for (std::uint32_t c = 0; c < blob.width; ++c) {
           const std::uint8_t* base = blob.data.data() + static_cast<std::size_t>(r) * blob.row_step +

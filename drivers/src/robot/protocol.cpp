@@ -99,9 +99,7 @@ bool check_field(std::string_view s, const FieldSpec& f) {
       return !s.empty() && s.size() <= kMaxIdentChars && std::all_of(s.begin(), s.end(), [](char c) {
         return is_digit(c) || (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '_' || c == '-' || c == '.';
       });
-    case Cls::word:
-      return !s.empty() && s.size() <= 16 && s[0] >= 'A' && s[0] <= 'Z' &&
-             std::all_of(s.begin(), s.end(), [](char c) { return is_digit(c) || (c >= 'A' && c <= 'Z') || c == '_'; });
+    case Cls::word: return is_code(s);
     case Cls::hex8:
       return s.size() == 8 &&
              std::all_of(s.begin(), s.end(), [](char c) { return is_digit(c) || (c >= 'A' && c <= 'F'); });
@@ -235,6 +233,11 @@ std::optional<double> to_double(std::string_view s) {
   const auto [ptr, ec] = std::from_chars(s.data(), end, v);
   if (ec != std::errc{} || ptr != end || !std::isfinite(v)) return std::nullopt;
   return v;
+}
+
+bool is_code(std::string_view s) {
+  return !s.empty() && s.size() <= 16 && s[0] >= 'A' && s[0] <= 'Z' &&
+         std::all_of(s.begin(), s.end(), [](char c) { return (c >= '0' && c <= '9') || (c >= 'A' && c <= 'Z') || c == '_'; });
 }
 
 std::optional<int> to_int(std::string_view s) {

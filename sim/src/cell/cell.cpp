@@ -1,9 +1,7 @@
 // The simulated cell (cell.hpp): PLC, camera, robot and spindle around one casting.
 #include "fettle/sim/cell.hpp"
 
-#include <algorithm>
 #include <atomic>
-#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <condition_variable>
@@ -25,6 +23,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/drivers/canopen_transport.hpp"
+#include "fettle/drivers/robot_protocol.hpp"
 #include "fettle/sim/camera.hpp"
 #include "fettle/sim/robot.hpp"
 #include "fettle/sim/sim.hpp"
@@ -478,12 +477,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       args >> a >> b;
       // NAK and FAULT codes as docs/robot-protocol.md allows them: UPPER *15(UPPER / DIGIT / "_")
       const std::string& code = what == "nak" ? b : what == "fault-at" ? b : std::string();
-      const bool code_ok = code.empty() || (code.size() <= 16 && std::isupper(static_cast<unsigned char>(code[0])) != 0 &&
-                                            std::all_of(code.begin(), code.end(), [](char c) {
-                                              return std::isupper(static_cast<unsigned char>(c)) != 0 ||
-                                                     std::isdigit(static_cast<unsigned char>(c)) != 0 || c == '_';
-                                            }));
-      if (!code_ok)
+      if (!code.empty() && !drivers::robot::is_code(code))
         return Error{"sim.cell_command", "'" + line + "': the code '" + code +
                                              "' is not a protocol code (an upper-case letter, then up to 15 of A-Z 0-9 _)"};
       asio::post(io, [this, what, a, b] {

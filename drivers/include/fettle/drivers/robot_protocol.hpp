@@ -77,6 +77,8 @@ std::string fixed(double value, int decimals);
 /// Parses a field checked by parse_line (or any decimal text); nullopt on garbage.
 std::optional<double> to_double(std::string_view s);
 std::optional<int> to_int(std::string_view s);
+/// A NAK or FAULT code as the grammar allows it: an upper-case letter, then up to 15 of A-Z 0-9 _.
+bool is_code(std::string_view s);
 
 // ---- points -----------------------------------------------------------------
 
