@@ -1,8 +1,8 @@
 // Fuzz target: point-cloud files as `fettle locate` and template scans read them
-// (vision/cloud.hpp load_cloud, PLY and PCD through PCL's readers). The first byte picks the
-// extension. Any file gives finite points (and unit or zero normals) or a UserError; a header
-// claiming billions of points must not make it allocate gigabytes (libFuzzer's -rss_limit_mb
-// and -malloc_limit_mb catch that).
+// (vision/cloud.hpp load_cloud: PLY through PCL's reader, PCD through Fettle's own). The first
+// byte picks the extension. Any file gives finite points (and unit or zero normals) or a
+// UserError; a header claiming billions of points must not make it allocate gigabytes
+// (libFuzzer's -rss_limit_mb and -malloc_limit_mb catch that).
 #include <cmath>
 #include <cstdint>
 

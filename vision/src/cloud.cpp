@@ -13,12 +13,10 @@
 
 #include <pcl/PCLPointCloud2.h>
 #include <pcl/common/io.h>
-#include <pcl/conversions.h>
-#include <pcl/io/pcd_io.h>
 #include <pcl/io/ply_io.h>
-#include <pcl/point_types.h>
 
 #include "fettle/core/error.hpp"
+#include "pcd_reader.hpp"
 
 namespace fettle::vision {
 
@@ -35,24 +33,44 @@ Bounds bounds(const Cloud& cloud) {
 
 namespace {
 
-bool has_field(const pcl::PCLPointCloud2& blob, const std::string& name) {
-  return std::any_of(blob.fields.begin(), blob.fields.end(), [&](const auto& f) { return f.name == name; });
+/// Where a field's first value sits in a point, and its PCLPointField datatype.
+struct FieldAt {
+  std::uint32_t offset = 0;
+  std::uint8_t datatype = 0;
+};
+
+/// The named field, when the blob has it with a numeric type that fits in a point.
+std::optional<FieldAt> field_at(const pcl::PCLPointCloud2& blob, const char* name) {
+  const auto it = std::find_if(blob.fields.begin(), blob.fields.end(), [&](const auto& f) { return f.name == name; });
+  if (it == blob.fields.end()) return std::nullopt;
+  const std::size_t size = pcl::getFieldSize(it->datatype);
+  if (size == 0 || it->datatype == pcl::PCLPointField::BOOL || std::size_t{it->offset} + size > blob.point_step)
+    return std::nullopt;
+  return FieldAt{it->offset, it->datatype};
 }
 
-/// Byte offsets of the named fields when each is one FLOAT32 (the PLY and PCD files Fettle and
-/// most scanners write), else nothing.
-template <std::size_t N>
-std::optional<std::array<std::uint32_t, N>> float32_offsets(const pcl::PCLPointCloud2& blob,
-                                                            const std::array<const char*, N>& names) {
-  std::array<std::uint32_t, N> out{};
-  for (std::size_t k = 0; k < N; ++k) {
-    const auto it = std::find_if(blob.fields.begin(), blob.fields.end(), [&](const auto& f) { return f.name == names[k]; });
-    if (it == blob.fields.end() || it->datatype != pcl::PCLPointField::FLOAT32 || it->count != 1 ||
-        it->offset + sizeof(float) > blob.point_step)
-      return std::nullopt;
-    out[k] = it->offset;
+template <typename T>
+float read_as(const std::uint8_t* p) {
+  T v;
+  std::memcpy(&v, p, sizeof v);
+  return static_cast<float>(v);
+}
+
+/// One value of a PCLPointField datatype as float (field_at() has vetted the type).
+float value_at(const std::uint8_t* p, std::uint8_t datatype) {
+  using F = pcl::PCLPointField;
+  switch (datatype) {
+    case F::INT8: return read_as<std::int8_t>(p);
+    case F::UINT8: return read_as<std::uint8_t>(p);
+    case F::INT16: return read_as<std::int16_t>(p);
+    case F::UINT16: return read_as<std::uint16_t>(p);
+    case F::INT32: return read_as<std::int32_t>(p);
+    case F::UINT32: return read_as<std::uint32_t>(p);
+    case F::INT64: return read_as<std::int64_t>(p);
+    case F::UINT64: return read_as<std::uint64_t>(p);
+    case F::FLOAT64: return read_as<double>(p);
+    default: return read_as<float>(p);
   }
-  return out;
 }
 
 std::string lower_extension(const std::filesystem::path& file) {
@@ -61,7 +79,7 @@ std::string lower_extension(const std::filesystem::path& file) {
   return ext;
 }
 
-// Fewest bytes one value of a PLY/PCD type takes in the file: binary, its size; ASCII, a digit
+// Fewest bytes one value of a PLY type takes in the file: binary, its size; ASCII, a digit
 // and a separator.
 std::uint64_t min_value_bytes(bool ascii, std::uint64_t binary_size) { return ascii ? 2 : binary_size; }
 
@@ -72,11 +90,12 @@ std::uint64_t ply_type_size(const std::string& t) {
   return 4;  // int, uint, float and their sized names
 }
 
-// Checks that the element / point counts a PLY or PCD header claims fit in the file, before
-// PCL allocates memory for them (a header claiming billions of points would otherwise make it
-// allocate gigabytes), and that there is a header at all. Returns the problem, or an empty
-// string. Counts that cannot be read are left to PCL's own parser.
-std::string implausible_header(const std::filesystem::path& file, bool pcd) {
+// Checks that the element counts a PLY header claims fit in the file, before PCL allocates
+// memory for them (a header claiming billions of vertices would otherwise make it allocate
+// gigabytes), and that there is a header at all. Returns the problem, or an empty string.
+// Counts that cannot be read are left to PCL's own parser. (PCD files are read by
+// detail::read_pcd, which checks its header itself.)
+std::string implausible_ply_header(const std::filesystem::path& file) {
   std::ifstream in(file, std::ios::binary);
   std::error_code ec;
   const std::uint64_t size = std::filesystem::file_size(file, ec);
@@ -85,117 +104,46 @@ std::string implausible_header(const std::filesystem::path& file, bool pcd) {
   std::uint64_t needed = 0;  // bytes the claimed data needs at least
   std::string claimed;       // what the header claims, for the message
   bool ascii = false;
-  bool compressed = false;
   bool header_complete = false;
-  if (pcd) {
-    std::vector<std::uint64_t> sizes, counts;
-    std::vector<std::string> fields, types;
-    std::uint64_t width = 0, height = 1, points = 0;
-    auto read_u64 = [](std::istringstream& w, std::uint64_t& out) {
-      std::string t;
-      w >> t;
-      if (t.empty() || t.size() > 19 || t.find_first_not_of("0123456789") != std::string::npos) return;
-      out = std::stoull(t);
-    };
-    static const std::vector<std::string> keys = {"VERSION", "FIELDS", "SIZE",   "TYPE", "COUNT",
-                                                   "WIDTH",   "HEIGHT", "VIEWPOINT", "POINTS", "DATA"};
-    while (std::getline(in, line)) {
-      if (!line.empty() && line.back() == '\r') line.pop_back();
-      // Only printable header lines with known keys (PCL 1.13 crashes on some others).
-      if (!std::all_of(line.begin(), line.end(), [](char c) { return c >= 0x20 && c < 0x7F; }))
-        return "the PCD header has a line with binary bytes: not a PCD file, or corrupt";
-      std::istringstream w(line);
-      std::string key;
-      w >> key;
-      if (key.empty() || key[0] == '#') continue;
-      if (std::find(keys.begin(), keys.end(), key) == keys.end())
-        return "the PCD header has an unknown line '" + line.substr(0, 40) + "': not a PCD file, or corrupt";
-      if (key == "FIELDS" || key == "TYPE") {
-        auto& v = key == "FIELDS" ? fields : types;
-        for (std::string x; w >> x;) v.push_back(x);
-      } else if (key == "SIZE" || key == "COUNT") {
-        auto& v = key == "SIZE" ? sizes : counts;
-        for (std::uint64_t x = 0; w >> x;) v.push_back(std::min<std::uint64_t>(x, 1U << 20));
-      } else if (key == "WIDTH") {
-        read_u64(w, width);
-      } else if (key == "HEIGHT") {
-        read_u64(w, height);
-      } else if (key == "POINTS") {
-        read_u64(w, points);
-      } else if (key == "DATA") {
-        std::string format;
-        w >> format;
-        ascii = format == "ascii";
-        compressed = format == "binary_compressed";
-        header_complete = true;
-        break;
-      }
+  std::uint64_t count = 0, element_bytes = 0;
+  auto close_element = [&] {
+    const std::uint64_t add = count > 0 && element_bytes > (1ULL << 62) / count ? (1ULL << 62) : count * element_bytes;
+    needed = std::min<std::uint64_t>(needed + add, 1ULL << 62);
+    count = element_bytes = 0;
+  };
+  if (!std::getline(in, line) || line.rfind("ply", 0) != 0) return "not a PLY file (it does not start with 'ply')";
+  while (std::getline(in, line)) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream w(line);
+    std::string key;
+    w >> key;
+    if (key == "format") {
+      std::string format;
+      w >> format;
+      ascii = format == "ascii";
+    } else if (key == "element") {
+      close_element();
+      std::string name, t;
+      w >> name >> t;
+      if (!t.empty() && t.size() <= 19 && t.find_first_not_of("0123456789") == std::string::npos) count = std::stoull(t);
+      if (name == "vertex") claimed = t + " vertices";
+    } else if (key == "property") {
+      std::string type;
+      w >> type;
+      if (type == "list") w >> type;  // a list has at least its count
+      element_bytes += min_value_bytes(ascii, ply_type_size(type));
+    } else if (key == "end_header") {
+      header_complete = true;
+      break;
     }
-    // PCL 1.13 crashes on a header whose FIELDS, SIZE, TYPE and COUNT do not agree.
-    const bool sizes_ok = std::all_of(sizes.begin(), sizes.end(), [](auto x) { return x == 1 || x == 2 || x == 4 || x == 8; });
-    const bool types_ok =
-        std::all_of(types.begin(), types.end(), [](const std::string& t) { return t == "I" || t == "U" || t == "F"; });
-    // COUNT 0: PCL drops the field and then crashes reading the data (fuzz_cloud).
-    const bool counts_ok = std::all_of(counts.begin(), counts.end(), [](auto x) { return x > 0; });
-    if (header_complete && (fields.empty() || sizes.size() != fields.size() || types.size() != fields.size() ||
-                            (!counts.empty() && counts.size() != fields.size()) || !sizes_ok || !types_ok || !counts_ok))
-      return "the PCD header's FIELDS, SIZE, TYPE and COUNT lines do not describe the same fields "
-             "(SIZE 1, 2, 4 or 8; TYPE I, U or F; COUNT 1 or more)";
-    std::uint64_t step = 0;
-    for (std::size_t i = 0; i < sizes.size(); ++i)
-      step += min_value_bytes(ascii, sizes[i]) * (i < counts.size() ? counts[i] : 1);
-    width = std::min<std::uint64_t>(width, 1ULL << 32);
-    height = std::min<std::uint64_t>(height, 1ULL << 32);
-    const std::uint64_t n = std::max(points, width * height);
-    needed = n > 0 && step > (1ULL << 62) / n ? (1ULL << 62) : n * step;
-    claimed = std::to_string(n) + " points";
-  } else {
-    std::uint64_t count = 0, element_bytes = 0;
-    auto close_element = [&] {
-      const std::uint64_t add = count > 0 && element_bytes > (1ULL << 62) / count ? (1ULL << 62) : count * element_bytes;
-      needed = std::min<std::uint64_t>(needed + add, 1ULL << 62);
-      count = element_bytes = 0;
-    };
-    if (!std::getline(in, line) || line.rfind("ply", 0) != 0) return "not a PLY file (it does not start with 'ply')";
-    while (std::getline(in, line)) {
-      if (!line.empty() && line.back() == '\r') line.pop_back();
-      std::istringstream w(line);
-      std::string key;
-      w >> key;
-      if (key == "format") {
-        std::string format;
-        w >> format;
-        ascii = format == "ascii";
-      } else if (key == "element") {
-        close_element();
-        std::string name, t;
-        w >> name >> t;
-        if (!t.empty() && t.size() <= 19 && t.find_first_not_of("0123456789") == std::string::npos) count = std::stoull(t);
-        if (name == "vertex") claimed = t + " vertices";
-      } else if (key == "property") {
-        std::string type;
-        w >> type;
-        if (type == "list") w >> type;  // a list has at least its count
-        element_bytes += min_value_bytes(ascii, ply_type_size(type));
-      } else if (key == "end_header") {
-        header_complete = true;
-        break;
-      }
-    }
-    close_element();
   }
-  // (PCL 1.13's PCDReader crashes on a file without a header, e.g. an empty one.)
-  if (!header_complete || !in)
-    return pcd ? "no PCD header (no DATA line): not a PCD file, or truncated"
-               : "no PLY header (no end_header line): not a PLY file, or truncated";
+  close_element();
+  if (!header_complete || !in) return "no PLY header (no end_header line): not a PLY file, or truncated";
   const auto header_end = static_cast<std::uint64_t>(in.tellg());
   const std::uint64_t data = size > header_end ? size - header_end : 0;
-  // LZF (binary_compressed PCD) shrinks data at most about 100 times.
-  const std::uint64_t capacity = compressed ? data * 100 : data;
-  if (needed <= capacity) return {};
-  return "the header claims " + claimed + " (at least " + std::to_string(needed) + " bytes" +
-         (compressed ? " uncompressed" : "") + ") but the file holds " + std::to_string(data) +
-         " bytes of data: truncated or corrupt";
+  if (needed <= data) return {};
+  return "the header claims " + claimed + " (at least " + std::to_string(needed) + " bytes) but the file holds " +
+         std::to_string(data) + " bytes of data: truncated or corrupt";
 }
 
 }  // namespace
@@ -205,33 +153,27 @@ Cloud load_cloud(const std::filesystem::path& file) {
   if (!std::filesystem::is_regular_file(file, ec))
     throw UserError(file.string() + ": no such file (expected a PLY or PCD point cloud)");
   const std::string ext = lower_extension(file);
-  if (ext == ".pcd" || ext == ".ply") {
-    if (const auto why = implausible_header(file, ext == ".pcd"); !why.empty()) throw UserError(file.string() + ": " + why);
-  }
-  pcl::PCLPointCloud2 blob;
-  int rc = -1;
   if (ext != ".pcd" && ext != ".ply")
     throw UserError(file.string() + ": unknown point-cloud format '" + ext + "' (use .ply or .pcd)");
-  try {
-    if (ext == ".pcd") {
-      pcl::PCDReader reader;
-      rc = reader.read(file.string(), blob);
-    } else {
+  pcl::PCLPointCloud2 blob;
+  if (ext == ".pcd") {
+    // Fettle's own reader: PCL 1.13's PCDReader crashes on many malformed headers (fuzz_cloud).
+    blob = detail::read_pcd(file);
+  } else {
+    if (const auto why = implausible_ply_header(file); !why.empty()) throw UserError(file.string() + ": " + why);
+    int rc = -1;
+    try {
       pcl::PLYReader reader;
       rc = reader.read(file.string(), blob);
+    } catch (const std::exception& e) {
+      throw UserError(file.string() + ": cannot read the point cloud, corrupt header (" + e.what() + ")");
     }
-  } catch (const std::exception& e) {
-    // PCL 1.13's readers throw on some headers, e.g. std::out_of_range for a DATA line
-    // without its value (found by fuzz_cloud).
-    throw UserError(file.string() + ": cannot read the point cloud, corrupt header (" + e.what() + ")");
+    if (rc < 0) throw UserError(file.string() + ": cannot read the point cloud (corrupt or not a PLY file)");
   }
-  if (rc < 0) throw UserError(file.string() + ": cannot read the point cloud (corrupt or not a PLY/PCD file)");
-  if (!has_field(blob, "x") || !has_field(blob, "y") || !has_field(blob, "z"))
-    throw UserError(file.string() + ": the file has no x, y, z fields");
   const std::size_t total = static_cast<std::size_t>(blob.width) * blob.height;
   if (total == 0) throw UserError(file.string() + ": the point cloud is empty (0 points)");
-  // The layout the header announces must fit the data read; PCL's conversions trust it (a
-  // binary PCD whose header lies made fromPCLPointCloud2 read past the buffer; fuzz_cloud).
+  // The layout the header announces must fit the data read (a binary file whose header lies
+  // would otherwise be read past the end of the buffer; fuzz_cloud).
   for (const auto& f : blob.fields) {
     const std::size_t size = pcl::getFieldSize(f.datatype);
     if (size == 0 || static_cast<std::size_t>(f.offset) + size * std::max<std::size_t>(f.count, 1) > blob.point_step)
@@ -243,47 +185,31 @@ Cloud load_cloud(const std::filesystem::path& file) {
     throw UserError(file.string() + ": the header announces " + std::to_string(blob.width) + " x " +
                     std::to_string(blob.height) + " points of " + std::to_string(blob.point_step) + " bytes, the file holds " +
                     std::to_string(blob.data.size()) + " bytes of point data (truncated or corrupt)");
+  const auto x = field_at(blob, "x"), y = field_at(blob, "y"), z = field_at(blob, "z");
+  if (!x || !y || !z) throw UserError(file.string() + ": the file has no numeric x, y, z fields");
+  const auto nx = field_at(blob, "normal_x"), ny = field_at(blob, "normal_y"), nz = field_at(blob, "normal_z");
+  const bool normals = nx && ny && nz;
 
   Cloud out;
-  const bool normals = has_field(blob, "normal_x") && has_field(blob, "normal_y") && has_field(blob, "normal_z");
-  if (normals) {
-    auto keep = [&](const Eigen::Vector3f& v, const Eigen::Vector3f& n) {
-      if (!v.allFinite()) return;
+  out.points.reserve(total);
+  if (normals) out.normals.reserve(total);
+  for (std::uint32_t r = 0; r < blob.height; ++r)
+    for (std::uint32_t c = 0; c < blob.width; ++c) {
+      const std::uint8_t* base =
+          blob.data.data() + static_cast<std::size_t>(r) * blob.row_step + static_cast<std::size_t>(c) * blob.point_step;
+      const Eigen::Vector3f v(value_at(base + x->offset, x->datatype), value_at(base + y->offset, y->datatype),
+                              value_at(base + z->offset, z->datatype));
+      if (!v.allFinite()) continue;
       out.points.push_back(v);
+      if (!normals) continue;
+      const Eigen::Vector3f n(value_at(base + nx->offset, nx->datatype), value_at(base + ny->offset, ny->datatype),
+                              value_at(base + nz->offset, nz->datatype));
       out.normals.push_back(n.allFinite() && n.norm() > 0.5f ? Eigen::Vector3f(n.normalized()) : Eigen::Vector3f::Zero());
-    };
-    out.points.reserve(total);
-    out.normals.reserve(total);
-    // Read float fields in place; PCL's PointNormal conversion wants a curvature field as well
-    // and prints "Failed to find match for field 'curvature'" for every file without one.
-    const auto at = float32_offsets(blob, std::array{"x", "y", "z", "normal_x", "normal_y", "normal_z"});
-    if (at) {  // the layout fits the data (checked above)
-      for (std::uint32_t r = 0; r < blob.height; ++r)
-        for (std::uint32_t c = 0; c < blob.width; ++c) {
-          const std::uint8_t* base = blob.data.data() + static_cast<std::size_t>(r) * blob.row_step +
-                                     static_cast<std::size_t>(c) * blob.point_step;
-          float f[6];
-          for (std::size_t k = 0; k < 6; ++k) std::memcpy(&f[k], base + (*at)[k], sizeof(float));
-          keep(Eigen::Vector3f(f[0], f[1], f[2]), Eigen::Vector3f(f[3], f[4], f[5]));
-        }
-    } else {
-      pcl::PointCloud<pcl::PointNormal> pc;
-      pcl::fromPCLPointCloud2(blob, pc);
-      for (const auto& p : pc) keep(p.getVector3fMap(), p.getNormalVector3fMap());
     }
-    // A normal field that is mostly zeros or NaNs is no normal field; a few invalid ones
-    // stay zero (no direction: they add nothing to point-to-plane terms).
-    const auto invalid = std::count_if(out.normals.begin(), out.normals.end(), [](const auto& n) { return n.isZero(); });
-    if (2 * static_cast<std::size_t>(invalid) > out.normals.size()) out.normals.clear();
-  } else {
-    pcl::PointCloud<pcl::PointXYZ> pc;
-    pcl::fromPCLPointCloud2(blob, pc);
-    out.points.reserve(pc.size());
-    for (const auto& p : pc) {
-      const Eigen::Vector3f v = p.getVector3fMap();
-      if (v.allFinite()) out.points.push_back(v);
-    }
-  }
+  // A normal field that is mostly zeros or NaNs is no normal field; a few invalid ones stay
+  // zero (no direction: they add nothing to point-to-plane terms).
+  const auto invalid = std::count_if(out.normals.begin(), out.normals.end(), [](const auto& n) { return n.isZero(); });
+  if (2 * static_cast<std::size_t>(invalid) > out.normals.size()) out.normals.clear();
   if (out.points.empty())
     throw UserError(file.string() + ": the point cloud has " + std::to_string(total) +
                     " points but none is valid (all NaN or infinite)");
