@@ -15,8 +15,6 @@
 #include <thread>
 #include <vector>
 
-#include <pcl/io/pcd_io.h>
-#include <pcl/point_types.h>
 #include <boost/asio/executor_work_guard.hpp>
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/post.hpp>
@@ -33,6 +31,7 @@
 #include "fettle/vision/calibration/gray_code.hpp"
 #include "fettle/vision/calibration/hand_eye.hpp"
 #include "fettle/vision/calibration/stereo.hpp"
+#include "fettle/vision/cloud.hpp"
 
 namespace {
 
@@ -126,11 +125,8 @@ Transform to_transform(const PoseRow& r) {
 
 std::vector<Vec3> read_cloud(const fs::path& file) {
   std::vector<Vec3> pts;
-  if (file.extension() == ".pcd") {
-    pcl::PointCloud<pcl::PointXYZ> cloud;
-    if (pcl::io::loadPCDFile(file.string(), cloud) != 0) throw UserError(file.string() + ": cannot read the PCD file");
-    for (const auto& p : cloud.points)
-      if (std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z)) pts.emplace_back(p.x, p.y, p.z);
+  if (file.extension() == ".pcd" || file.extension() == ".ply") {  // through Fettle's checked readers
+    for (const auto& p : fettle::vision::load_cloud(file).points) pts.emplace_back(p.cast<double>());
     return pts;
   }
   std::ifstream in(file);
@@ -793,7 +789,7 @@ FETTLE_COMMAND("calibrate", [](CLI::App& app, const fettle::cli::Common&) {
                  "CSV name,x_mm,y_mm,z_mm,qw,qx,qy,qz of the flange in the base frame (sphere: TCP x,y,z)");
   he->add_option("--images", ha->images, "Directory with the board image of every pose (named as in the CSV)");
   he->add_option("--board-poses", ha->board_poses, "CSV of board poses in the camera frame (T_camera_board)");
-  he->add_option("--clouds", ha->clouds, "Directory with the sphere scan (.xyz or .pcd) of every pose");
+  he->add_option("--clouds", ha->clouds, "Directory with the sphere scan (.xyz, .pcd or .ply) of every pose");
   he->add_option("--calibration", ha->calibration, "Calibration file with the intrinsics (kept in the output)");
   he->add_option("--board", ha->board, "Chessboard inner corners / ChArUco squares COLSxROWS (with --images)");
   he->add_option("--square-mm", ha->square_mm, "Square size in mm (with --images)");

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <sstream>
 #include <string>
 
 #include <opencv2/imgcodecs.hpp>
@@ -206,16 +207,24 @@ TEST_F(CalibrateCli, HandEyeFromSphereScans) {
   for (int i = 0; i < 10; ++i) {
     const Vec3 tcp(150 * u(rng), 120 * u(rng), 60 + 60 * u(rng));
     const Vec3 c = truth.T_base_camera.inverse() * tcp;
-    const std::string name = "s" + std::to_string(i) + ".xyz";
-    std::ofstream cloud(dir_ / name);
+    // Every other scan as a PCD file (read through vision::load_cloud), the rest as .xyz text.
+    const std::string name = "s" + std::to_string(i) + (i % 2 ? ".pcd" : ".xyz");
+    std::ostringstream points;
+    int count = 0;
     for (int k = 0; k < 1500; ++k) {
       Vec3 d(u(rng), u(rng), u(rng));
       if (d.norm() > 1.0 || d.norm() < 0.01) continue;
       d.normalize();
       if (d.z() > -0.2) continue;  // the half facing the camera (camera looks along +z)
       const Vec3 p = c + (25.0 + n(rng)) * d;
-      cloud << p.x() << " " << p.y() << " " << p.z() << "\n";
+      points << p.x() << " " << p.y() << " " << p.z() << "\n";
+      ++count;
     }
+    std::ofstream cloud(dir_ / name);
+    if (i % 2)
+      cloud << "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH " << count
+            << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << count << "\nDATA ascii\n";
+    cloud << points.str();
     csv << name << "," << tcp.x() << "," << tcp.y() << "," << tcp.z() << "\n";
   }
   csv.close();

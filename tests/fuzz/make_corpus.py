@@ -78,6 +78,47 @@ normals = b"".join(struct.pack("<6f", *p, 0.0, 0.0, 1.0) for p in pts)
 write(d, "spiral_normals.pcd", b"\x00" + pcd_head.replace("FIELDS x y z", "FIELDS x y z normal_x normal_y normal_z")
       .replace("SIZE 4 4 4", "SIZE 4 4 4 4 4 4").replace("TYPE F F F", "TYPE F F F F F F")
       .replace("COUNT 1 1 1", "COUNT 1 1 1 1 1 1").encode() + normals)
+def lzf(data):
+    """LZF as PCL's binary_compressed PCD uses it: literal runs (ctrl = length - 1, up to 32)
+    and back references (ctrl = (length - 2) << 5 | offset >> 8, then offset & 0xff; length
+    over 8 takes an extra byte), found greedily through a 3-byte hash."""
+    out, lit, seen, i = bytearray(), bytearray(), {}, 0
+
+    def flush():
+        for k in range(0, len(lit), 32):
+            out.append(len(lit[k:k + 32]) - 1)
+            out.extend(lit[k:k + 32])
+        lit.clear()
+
+    while i < len(data):
+        key = data[i:i + 3]
+        j = seen.get(key)
+        seen[key] = i
+        if len(key) == 3 and j is not None and i - j - 1 < 8192:
+            n = 3
+            while i + n < len(data) and n < 264 and data[j + n] == data[i + n]:
+                n += 1
+            flush()
+            off = i - j - 1
+            if n - 2 < 7:
+                out += bytes([((n - 2) << 5) | (off >> 8), off & 0xFF])
+            else:
+                out += bytes([(7 << 5) | (off >> 8), n - 2 - 7, off & 0xFF])
+            i += n
+        else:
+            lit.append(data[i])
+            i += 1
+    flush()
+    return bytes(out)
+
+
+# Organized 8 x 8 with an rgba field and a row of NaN points, binary_compressed (fields one
+# after another: all x, all y, all z, all rgba).
+grid = [(x * 2.0, y * 2.0, 600.0 + 0.1 * x) if y != 3 else (math.nan,) * 3 for y in range(8) for x in range(8)]
+soa = b"".join(struct.pack("<64f", *[p[k] for p in grid]) for k in range(3)) + struct.pack("<64I", *[0xFF8040] * 64)
+write(d, "organized_compressed.pcd", b"\x00" + ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgba\nSIZE 4 4 4 4\n"
+      "TYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 8\nHEIGHT 8\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 64\n"
+      "DATA binary_compressed\n").encode() + struct.pack("<II", len(lzf(soa)), len(soa)) + lzf(soa))
 kitti = (ROOT / "tests/data/kitti_source.ply").read_bytes()
 head_end = kitti.index(b"end_header\n") + len(b"end_header\n")
 head = kitti[:head_end].decode()
