@@ -197,3 +197,35 @@ TEST_F(CloudBadInput, PcdDataLineWithoutItsValueIsAUserError) {
   const auto f = write("data_without_value.pcd", input.substr(1));  // the first byte picks the extension
   EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr("DATA without a value")));
 }
+
+TEST_F(CloudBadInput, PlyHeaderLinesPclWouldMisreadAreRefused) {
+  // fuzz_cloud (2026-12-01): "element vertex -5" made PCL's PLYReader allocate 36 GB (-5 read
+  // as 2^32 - 5). Every header line must be one PLY has, with values of the right kind.
+  const std::string good = ply_header("binary_little_endian", "1") + floats({1, 2, 3});
+  auto with = [&](const std::string& from, const std::string& to) { return std::string(good).replace(good.find(from), from.size(), to); };
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {with("element vertex 1", "element vertex -5"), "line 3: element 'vertex' has count '-5', not a whole number"},
+      {with("property float y", "property flaot y"), "line 5: property 'property flaot y' has an unknown type"},
+      {with("format binary_little_endian", "format binary_middle_endian"), "line 2: format 'binary_middle_endian' is not"},
+      {with("property float z\n", "property float z\nproperty list uchar quad idx\n"), "line 7: property 'property list uchar quad idx' has an unknown type"},
+      {with("element vertex 1\n", "property float w\nelement vertex 1\n"), "line 3: property 'property float w' comes before any element"},
+      {with("end_header", "`ormat 1ai\nend_header"), "line 7: unknown line '`ormat 1ai'"},
+  };
+  int i = 0;
+  for (const auto& [text, message] : cases) {
+    const auto f = write("strict" + std::to_string(i++) + ".ply", text);
+    EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr(message))) << message;
+  }
+  // The fuzzer's reproducer itself (first byte: fuzz_cloud's extension choice).
+  std::ifstream in(fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud/ply-negative-vertex-count", std::ios::binary);
+  ASSERT_TRUE(in);
+  const std::string input(std::istreambuf_iterator<char>(in), {});
+  const auto out = load_in_child(write("negative.ply", input.substr(1)));
+  EXPECT_TRUE(out.how == ChildOutcome::How::returned) << out.detail;
+  EXPECT_LT(out.max_rss_mb, 1024);
+  // A comment, obj_info and face lists stay readable.
+  const auto faces = write("faces.ply", "ply\nformat ascii 1.0\ncomment scanner x\nobj_info y\nelement vertex 3\nproperty float x\n"
+                                        "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
+                                        "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n");
+  EXPECT_EQ(load_cloud(faces).size(), 3U);
+}

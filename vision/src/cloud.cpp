@@ -90,6 +90,13 @@ std::uint64_t ply_type_size(const std::string& t) {
   return 4;  // int, uint, float and their sized names
 }
 
+/// A header fragment as it may be shown in a message (binary bytes as '?').
+std::string printable(std::string s) {
+  for (char& c : s)
+    if (c < 0x20 || c >= 0x7F) c = '?';
+  return s;
+}
+
 // Checks that the element counts a PLY header claims fit in the file, before PCL allocates
 // memory for them (a header claiming billions of vertices would otherwise make it allocate
 // gigabytes), and that there is a header at all. Returns the problem, or an empty string.
@@ -112,29 +119,49 @@ std::string implausible_ply_header(const std::filesystem::path& file) {
     count = element_bytes = 0;
   };
   if (!std::getline(in, line) || line.rfind("ply", 0) != 0) return "not a PLY file (it does not start with 'ply')";
-  while (std::getline(in, line)) {
+  // PCL's PLYReader is lenient where it should not be (a vertex count of -5 became 2^32 - 5 and
+  // a 36 GB allocation; fuzz_cloud): every header line must be one the PLY format has, with
+  // values of the right kind.
+  static const std::vector<std::string> types = {"char",  "uchar", "short", "ushort", "int",   "uint",
+                                                 "float", "double", "int8", "uint8",  "int16", "uint16",
+                                                 "int32", "uint32", "float32", "float64"};
+  auto known = [&](const std::string& t) { return std::find(types.begin(), types.end(), t) != types.end(); };
+  bool in_element = false;
+  for (int line_no = 2; std::getline(in, line); ++line_no) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
+    const std::string at = "the PLY header, line " + std::to_string(line_no) + ": ";
     std::istringstream w(line);
     std::string key;
     w >> key;
+    if (key.empty() || key == "comment" || key == "obj_info") continue;
     if (key == "format") {
       std::string format;
       w >> format;
+      if (format != "ascii" && format != "binary_little_endian" && format != "binary_big_endian")
+        return at + "format '" + printable(format) + "' is not ascii, binary_little_endian or binary_big_endian";
       ascii = format == "ascii";
     } else if (key == "element") {
       close_element();
       std::string name, t;
       w >> name >> t;
-      if (!t.empty() && t.size() <= 19 && t.find_first_not_of("0123456789") == std::string::npos) count = std::stoull(t);
+      if (name.empty() || t.empty() || t.size() > 19 || t.find_first_not_of("0123456789") != std::string::npos)
+        return at + "element '" + printable(name) + "' has count '" + printable(t) + "', not a whole number";
+      count = std::stoull(t);
       if (name == "vertex") claimed = t + " vertices";
+      in_element = true;
     } else if (key == "property") {
-      std::string type;
+      std::string type, item;
       w >> type;
-      if (type == "list") w >> type;  // a list has at least its count
+      if (type == "list") w >> type >> item;  // a list has at least its count
+      if (!in_element || !known(type) || (!item.empty() && !known(item)))
+        return at + "property '" + printable(line.substr(0, 60)) + "' " +
+               (in_element ? "has an unknown type" : "comes before any element");
       element_bytes += min_value_bytes(ascii, ply_type_size(type));
     } else if (key == "end_header") {
       header_complete = true;
       break;
+    } else {
+      return at + "unknown line '" + printable(line.substr(0, 40)) + "': not a PLY file, or corrupt";
     }
   }
   close_element();
