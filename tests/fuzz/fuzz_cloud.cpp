@@ -1,5 +1,5 @@
 // Fuzz target: point-cloud files as `fettle locate` and template scans read them
-// (vision/cloud.hpp load_cloud: PLY through PCL's reader, PCD through Fettle's own). The first
+// (vision/cloud.hpp load_cloud: PLY and PCD through Fettle's own readers). The first
 // byte picks the extension. Any file gives finite points (and unit or zero normals) or a
 // UserError; a header claiming billions of points must not make it allocate gigabytes
 // (libFuzzer's -rss_limit_mb and -malloc_limit_mb catch that).

@@ -1,4 +1,4 @@
-// Bad point-cloud files for load_cloud (PLY through PCL's reader, PCD through Fettle's): NaN / Inf, no
+// Bad point-cloud files for load_cloud (PLY and PCD through Fettle's readers): NaN / Inf, no
 // points, headers that lie about the point count, headers claiming billions of points. Every
 // one is a UserError naming the file, or the finite points that are really there; none may
 // crash or allocate gigabytes (checked in a child process with a memory cap).
@@ -200,7 +200,8 @@ TEST_F(CloudBadInput, PcdDataLineWithoutItsValueIsAUserError) {
 
 TEST_F(CloudBadInput, PlyHeaderLinesPclWouldMisreadAreRefused) {
   // fuzz_cloud (2026-12-01): "element vertex -5" made PCL's PLYReader allocate 36 GB (-5 read
-  // as 2^32 - 5). Every header line must be one PLY has, with values of the right kind.
+  // as 2^32 - 5), an obj_info line tripped an assertion in it. Fettle reads PLY itself now:
+  // every header line must be one PLY has, with values of the right kind.
   const std::string good = ply_header("binary_little_endian", "1") + floats({1, 2, 3});
   auto with = [&](const std::string& from, const std::string& to) { return std::string(good).replace(good.find(from), from.size(), to); };
   const std::vector<std::pair<std::string, std::string>> cases = {
@@ -216,13 +217,15 @@ TEST_F(CloudBadInput, PlyHeaderLinesPclWouldMisreadAreRefused) {
     const auto f = write("strict" + std::to_string(i++) + ".ply", text);
     EXPECT_THAT([&] { (void)load_cloud(f); }, ::testing::ThrowsMessage<UserError>(HasSubstr(message))) << message;
   }
-  // The fuzzer's reproducer itself (first byte: fuzz_cloud's extension choice).
-  std::ifstream in(fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud/ply-negative-vertex-count", std::ios::binary);
-  ASSERT_TRUE(in);
-  const std::string input(std::istreambuf_iterator<char>(in), {});
-  const auto out = load_in_child(write("negative.ply", input.substr(1)));
-  EXPECT_TRUE(out.how == ChildOutcome::How::returned) << out.detail;
-  EXPECT_LT(out.max_rss_mb, 1024);
+  // The fuzzer's reproducers themselves (first byte: fuzz_cloud's extension choice).
+  for (const char* name : {"ply-negative-vertex-count", "ply-obj-info-assert"}) {
+    std::ifstream in(fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud" / name, std::ios::binary);
+    ASSERT_TRUE(in) << name;
+    const std::string input(std::istreambuf_iterator<char>(in), {});
+    const auto out = load_in_child(write(std::string(name) + ".ply", input.substr(1)));
+    EXPECT_TRUE(out.how == ChildOutcome::How::returned) << name << ": " << out.detail;
+    EXPECT_LT(out.max_rss_mb, 1024) << name;
+  }
   // A comment, obj_info and face lists stay readable.
   const auto faces = write("faces.ply", "ply\nformat ascii 1.0\ncomment scanner x\nobj_info y\nelement vertex 3\nproperty float x\n"
                                         "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"

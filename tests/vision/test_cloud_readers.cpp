@@ -1,7 +1,7 @@
-// Fettle's own PCD reader (vision/src/pcd_reader.cpp, used by load_cloud) against the Point
-// Cloud Library as an independent peer: files PCL's PCDWriter writes in all three encodings, and
-// the public PCD files in tests/data, read the same through both; plus the field types PCL
-// itself cannot convert and the errors that must name the line at fault.
+// Fettle's own PCD and PLY readers (vision/src/cloud_readers.cpp, used by load_cloud) against
+// the Point Cloud Library as an independent peer: files PCL's writers write in every encoding,
+// and the public PCD and PLY files in tests/data, read the same through both; plus the field
+// types PCL itself cannot convert, big-endian PLY, and errors that must name the line at fault.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 #include <unistd.h>
@@ -15,6 +15,7 @@
 #include <vector>
 
 #include <pcl/io/pcd_io.h>
+#include <pcl/io/ply_io.h>
 #include <pcl/point_types.h>
 
 #include "fettle/core/error.hpp"
@@ -29,7 +30,7 @@ namespace fs = std::filesystem;
 
 namespace {
 
-class PcdReader : public ::testing::Test {
+class CloudReaders : public ::testing::Test {
  protected:
   fs::path path(const std::string& name) {
     const auto p = fs::temp_directory_path() / ("fettle-pcd-" + std::to_string(::getpid()) + "-" + name);
@@ -71,7 +72,10 @@ pcl::PointCloud<pcl::PointNormal> organized_cloud() {
 /// PCL's own reading of a file: its finite points, in order.
 std::vector<Eigen::Vector3f> pcl_points(const fs::path& file) {
   pcl::PointCloud<pcl::PointXYZ> pc;
-  EXPECT_EQ(pcl::io::loadPCDFile(file.string(), pc), 0) << file;
+  if (file.extension() == ".ply")
+    EXPECT_EQ(pcl::io::loadPLYFile(file.string(), pc), 0) << file;
+  else
+    EXPECT_EQ(pcl::io::loadPCDFile(file.string(), pc), 0) << file;
   std::vector<Eigen::Vector3f> out;
   for (const auto& p : pc)
     if (p.getVector3fMap().allFinite()) out.push_back(p.getVector3fMap());
@@ -80,7 +84,7 @@ std::vector<Eigen::Vector3f> pcl_points(const fs::path& file) {
 
 }  // namespace
 
-TEST_F(PcdReader, ReadsWhatPclWritesInAllThreeEncodings) {
+TEST_F(CloudReaders, ReadsWhatPclWritesInAllThreeEncodings) {
   const auto pc = organized_cloud();
   std::size_t finite = 0;
   for (const auto& p : pc) finite += p.getVector3fMap().allFinite() ? 1 : 0;
@@ -107,7 +111,7 @@ TEST_F(PcdReader, ReadsWhatPclWritesInAllThreeEncodings) {
   }
 }
 
-TEST_F(PcdReader, PublicPcdFilesReadAsPclReadsThem) {
+TEST_F(CloudReaders, PublicPcdFilesReadAsPclReadsThem) {
   // bun0 and sac_plane_test: ASCII with normals; bun4: PCD v.5; milk: binary_compressed;
   // the cluttered scene: organized 640 x 480, binary_compressed, an rgba field, NaN points.
   for (const char* name : {"bun0.pcd", "bun4.pcd", "sac_plane_test.pcd", "milk.pcd", "milk_cartoon_all_small_clorox.pcd"}) {
@@ -120,7 +124,7 @@ TEST_F(PcdReader, PublicPcdFilesReadAsPclReadsThem) {
   }
 }
 
-TEST_F(PcdReader, IntegerAndDoubleCoordinatesAreConverted) {
+TEST_F(CloudReaders, IntegerAndDoubleCoordinatesAreConverted) {
   // x as int16, y as uint8, z as float64 (PCL's fromPCLPointCloud2 would give zeros for these).
   std::string data = "VERSION 0.7\nFIELDS x y z\nSIZE 2 1 8\nTYPE I U F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA binary\n";
   auto put = [&](auto v) { data.append(reinterpret_cast<const char*>(&v), sizeof v); };
@@ -139,7 +143,7 @@ TEST_F(PcdReader, IntegerAndDoubleCoordinatesAreConverted) {
   EXPECT_EQ(a.points[1], Eigen::Vector3f(7, 0, -0.25f));
 }
 
-TEST_F(PcdReader, MistakesAreNamedWithTheirLine) {
+TEST_F(CloudReaders, MistakesAreNamedWithTheirLine) {
   const std::string head = "# a comment\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 2\nHEIGHT 1\nPOINTS 2\n";
   struct Case {
     std::string name, text, message;
@@ -167,13 +171,13 @@ TEST_F(PcdReader, MistakesAreNamedWithTheirLine) {
   }
 }
 
-TEST_F(PcdReader, Pcd5FileWithOnlyPointsAndNoCount) {
+TEST_F(CloudReaders, Pcd5FileWithOnlyPointsAndNoCount) {
   const Cloud c = load_cloud(write("v5.pcd", "VERSION .5\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nPOINTS 2\nDATA ascii\n1 2 3\n\n4 5 6\n"));
   ASSERT_EQ(c.size(), 2U);
   EXPECT_EQ(c.points[1], Eigen::Vector3f(4, 5, 6));
 }
 
-TEST_F(PcdReader, CompressedFuzzSeedReadsAsPclReadsIt) {
+TEST_F(CloudReaders, CompressedFuzzSeedReadsAsPclReadsIt) {
   // fuzz_cloud's binary_compressed seed (tests/fuzz/make_corpus.py compresses it with literal
   // runs and back references): organized 8 x 8, one row of NaN points, an rgba field. It must
   // be a valid file, or the fuzzer would only ever explore the error paths from it.
@@ -187,4 +191,65 @@ TEST_F(PcdReader, CompressedFuzzSeedReadsAsPclReadsIt) {
   ASSERT_EQ(expected.size(), 56U);
   for (std::size_t i = 0; i < c.size(); ++i) EXPECT_EQ(c.points[i], expected[i]) << i;
   EXPECT_EQ(c.points[8], Eigen::Vector3f(0, 2, 600));
+}
+
+TEST_F(CloudReaders, ReadsWhatPclWritesAsPly) {
+  const auto pc = organized_cloud();
+  pcl::PLYWriter writer;
+  for (const bool binary : {false, true}) {
+    const auto f = path(binary ? "written_binary.ply" : "written_ascii.ply");
+    ASSERT_EQ(writer.write(f.string(), pc, binary, false), 0);
+    const auto expected = pcl_points(f);
+    const Cloud c = load_cloud(f);
+    ASSERT_EQ(c.size(), expected.size()) << f;
+    ASSERT_GT(c.size(), 1000U);
+    ASSERT_TRUE(c.has_normals()) << f;
+    for (std::size_t i = 0; i < c.size(); ++i) ASSERT_LT((c.points[i] - expected[i]).norm(), 1e-3f) << f << " point " << i;
+  }
+}
+
+TEST_F(CloudReaders, PublicPlyFilesReadAsPclReadsThem) {
+  for (const char* name : {"kitti_source.ply", "kitti_target.ply"}) {
+    const auto file = fettle::vision::test::data(name);
+    const auto expected = pcl_points(file);
+    const Cloud c = load_cloud(file);
+    ASSERT_EQ(c.size(), expected.size()) << name;
+    ASSERT_GT(c.size(), 1000U) << name;
+    for (std::size_t i = 0; i < c.size(); ++i) ASSERT_EQ(c.points[i], expected[i]) << name << " point " << i;
+  }
+}
+
+TEST_F(CloudReaders, BigEndianPlyWithAnElementBeforeTheVerticesAndAVertexList) {
+  auto be = [](auto v) {
+    std::string b(sizeof v, '\0');
+    std::memcpy(b.data(), &v, sizeof v);
+    return std::string(b.rbegin(), b.rend());
+  };
+  std::string data = "ply\nformat binary_big_endian 1.0\ncomment written by hand\nelement camera 1\n"
+                     "property list uchar float k\nproperty double f\nelement vertex 2\nproperty float x\n"
+                     "property list uchar int idx\nproperty short y\nproperty double z\nend_header\n";
+  data += std::string(1, '\x02') + be(1.5f) + be(2.5f) + be(800.0);                                   // camera
+  data += be(10.25f) + std::string(1, '\x01') + be(std::int32_t{7}) + be(std::int16_t{-3}) + be(600.5);  // vertex 0
+  data += be(-4.0f) + std::string(1, '\x00') + be(std::int16_t{9}) + be(0.125);                        // vertex 1
+  const Cloud c = load_cloud(write("big_endian.ply", data));
+  ASSERT_EQ(c.size(), 2U);
+  EXPECT_EQ(c.points[0], Eigen::Vector3f(10.25f, -3, 600.5f));
+  EXPECT_EQ(c.points[1], Eigen::Vector3f(-4, 9, 0.125f));
+  // Cut one byte short, it is refused and the message says where the data ran out.
+  const auto cut = write("big_endian_cut.ply", data.substr(0, data.size() - 1));
+  EXPECT_THAT([&] { (void)load_cloud(cut); }, ::testing::ThrowsMessage<UserError>(HasSubstr("vertex 1 property 'z'")));
+}
+
+TEST_F(CloudReaders, PlyDataMistakesAreNamed) {
+  const std::string head = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  EXPECT_THAT([&] { (void)load_cloud(write("bad.ply", head + "1 2 3\n4 five 6\n")); },
+              ::testing::ThrowsMessage<UserError>(HasSubstr("line 9: vertex 1 property 'y' 'five' is not a number")));
+  EXPECT_THAT([&] { (void)load_cloud(write("noformat.ply", "ply\nelement vertex 1\nproperty float x\nend_header\n1 2 3\n")); },
+              ::testing::ThrowsMessage<UserError>(HasSubstr("has no format line")));
+  EXPECT_THAT([&] { (void)load_cloud(write("novertex.ply", "ply\nformat ascii 1.0\nelement face 0\nend_header\n")); },
+              ::testing::ThrowsMessage<UserError>(HasSubstr("has no vertex element")));
+  const std::string neg = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty list char float q\nproperty float x\n"
+                          "property float y\nproperty float z\nend_header\n" + std::string(1, '\xff') + std::string(12, '\0');
+  EXPECT_THAT([&] { (void)load_cloud(write("neg.ply", neg)); },
+              ::testing::ThrowsMessage<UserError>(HasSubstr("vertex 0 property 'q' has a negative list count")));
 }

@@ -1,5 +1,5 @@
-// Fettle's own PCD reader (see pcd_reader.hpp for why).
-#include "pcd_reader.hpp"
+// Fettle's own PCD and PLY readers (see cloud_readers.hpp for why).
+#include "cloud_readers.hpp"
 
 #include <algorithm>
 #include <charconv>
@@ -322,12 +322,296 @@ pcl::PCLPointCloud2 parse_pcd(const std::string& bytes, const std::string& name)
   return blob;
 }
 
-pcl::PCLPointCloud2 read_pcd(const std::filesystem::path& file) {
+namespace {
+
+std::string read_file(const std::filesystem::path& file) {
   std::ifstream in(file, std::ios::binary);
   if (!in) throw UserError(file.string() + ": cannot open (check it exists and is readable)");
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (in.bad()) throw UserError(file.string() + ": read error");
-  return parse_pcd(bytes, file.string());
+  return bytes;
 }
+
+// ---- PLY
+
+struct PlyProperty {
+  std::string name;
+  std::uint8_t type = 0;        // PCLPointField datatype of the value (of the items, for a list)
+  std::uint8_t count_type = 0;  // a list's count type, 0 for a scalar
+};
+
+struct PlyElement {
+  std::string name;
+  std::uint64_t count = 0;
+  std::vector<PlyProperty> properties;
+};
+
+std::uint8_t ply_datatype(const std::string& t) {
+  using F = pcl::PCLPointField;
+  if (t == "char" || t == "int8") return F::INT8;
+  if (t == "uchar" || t == "uint8") return F::UINT8;
+  if (t == "short" || t == "int16") return F::INT16;
+  if (t == "ushort" || t == "uint16") return F::UINT16;
+  if (t == "int" || t == "int32") return F::INT32;
+  if (t == "uint" || t == "uint32") return F::UINT32;
+  if (t == "float" || t == "float32") return F::FLOAT32;
+  if (t == "double" || t == "float64") return F::FLOAT64;
+  return 0;
+}
+
+std::size_t type_size(std::uint8_t datatype) {
+  using F = pcl::PCLPointField;
+  switch (datatype) {
+    case F::INT8: case F::UINT8: return 1;
+    case F::INT16: case F::UINT16: return 2;
+    case F::INT32: case F::UINT32: case F::FLOAT32: return 4;
+    default: return 8;
+  }
+}
+
+/// A list count read as a whole number, or nothing when it is negative or not whole.
+std::optional<std::uint64_t> count_value(const std::uint8_t* p, std::uint8_t datatype) {
+  using F = pcl::PCLPointField;
+  std::int64_t v = 0;
+  switch (datatype) {
+    case F::INT8: { std::int8_t x; std::memcpy(&x, p, 1); v = x; break; }
+    case F::UINT8: { std::uint8_t x; std::memcpy(&x, p, 1); v = x; break; }
+    case F::INT16: { std::int16_t x; std::memcpy(&x, p, 2); v = x; break; }
+    case F::UINT16: { std::uint16_t x; std::memcpy(&x, p, 2); v = x; break; }
+    case F::INT32: { std::int32_t x; std::memcpy(&x, p, 4); v = x; break; }
+    case F::UINT32: { std::uint32_t x; std::memcpy(&x, p, 4); v = x; break; }
+    default: return std::nullopt;  // a float count
+  }
+  if (v < 0) return std::nullopt;
+  return static_cast<std::uint64_t>(v);
+}
+
+struct PlyHeader {
+  std::string format;  // ascii, binary_little_endian, binary_big_endian
+  std::vector<PlyElement> elements;
+  std::size_t data_start = 0;
+  std::size_t data_line = 0;
+};
+
+PlyHeader parse_ply_header(const std::string& bytes, const std::string& name) {
+  PlyHeader h;
+  std::size_t pos = 0;
+  std::size_t line_no = 0;
+  auto next_line = [&]() -> std::optional<std::string_view> {
+    if (pos >= bytes.size() || pos > kMaxHeaderBytes) return std::nullopt;
+    std::size_t end = bytes.find('\n', pos);
+    if (end == std::string::npos) end = bytes.size();
+    std::string_view line(bytes.data() + pos, end - pos);
+    pos = end + 1;
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
+    return line;
+  };
+  const auto first = next_line();
+  if (!first || *first != "ply") throw UserError(name + ": not a PLY file (it does not start with a line 'ply')");
+  auto fail = [&](const std::string& what) {
+    return UserError(name + ": the PLY header, line " + std::to_string(line_no) + ": " + what);
+  };
+  bool complete = false;
+  while (const auto line = next_line()) {
+    if (std::any_of(line->begin(), line->end(), [](char c) { return static_cast<unsigned char>(c) < 0x20 && c != '\t'; }))
+      throw fail("'" + shown(*line) + "' has binary bytes: not a PLY file, or corrupt");
+    const auto words = split(*line);
+    if (words.empty()) continue;
+    const std::string key(words[0]);
+    if (key == "comment" || key == "obj_info") continue;
+    if (key == "end_header") {
+      complete = true;
+      break;
+    }
+    if (key == "format") {
+      if (!h.format.empty()) throw fail("a second format line");
+      h.format = words.size() > 1 ? std::string(words[1]) : std::string();
+      if (h.format != "ascii" && h.format != "binary_little_endian" && h.format != "binary_big_endian")
+        throw fail("format '" + shown(h.format) + "' is not ascii, binary_little_endian or binary_big_endian");
+    } else if (key == "element") {
+      const std::string element = words.size() > 1 ? std::string(words[1]) : std::string();
+      const std::string_view t = words.size() > 2 ? words[2] : std::string_view();
+      const auto n = parse_uint(t);
+      if (element.empty() || words.size() != 3 || !n)
+        throw fail("element '" + shown(element) + "' has count '" + shown(t) + "', not a whole number");
+      h.elements.push_back(PlyElement{element, *n, {}});
+    } else if (key == "property") {
+      if (h.elements.empty()) throw fail("property '" + shown(*line) + "' comes before any element");
+      PlyProperty p;
+      const bool list = words.size() > 1 && words[1] == "list";
+      if (list && words.size() == 5) {
+        p.count_type = ply_datatype(std::string(words[2]));
+        p.type = ply_datatype(std::string(words[3]));
+        p.name = std::string(words[4]);
+      } else if (!list && words.size() == 3) {
+        p.type = ply_datatype(std::string(words[1]));
+        p.name = std::string(words[2]);
+      }
+      if (p.name.empty() || p.type == 0 || (list && p.count_type == 0))
+        throw fail("property '" + shown(*line) + "' has an unknown type (or is not 'property TYPE NAME' or "
+                   "'property list COUNT_TYPE TYPE NAME')");
+      h.elements.back().properties.push_back(p);
+    } else {
+      throw fail("unknown line '" + shown(*line) + "': not a PLY file, or corrupt");
+    }
+  }
+  if (!complete)
+    throw UserError(name + ": no PLY header (no end_header line" +
+                    (pos > kMaxHeaderBytes ? " in the first " + std::to_string(kMaxHeaderBytes) + " bytes" : std::string()) +
+                    "): not a PLY file, or truncated");
+  if (h.format.empty()) throw UserError(name + ": the PLY header has no format line");
+  h.data_start = std::min(pos, bytes.size());
+  h.data_line = line_no + 1;
+  return h;
+}
+
+/// Which value a PLY reader is at, for messages (built only when one is needed).
+struct Where {
+  const std::string& element;
+  std::uint64_t index;
+  const std::string& property;
+  [[nodiscard]] std::string str() const {
+    return element + " " + std::to_string(index) + " property '" + shown(property) + "'";
+  }
+};
+
+/// Walks the data of a PLY file: ASCII as whitespace-separated tokens (counting lines for the
+/// messages), binary as bytes with the file's byte order.
+class PlyData {
+ public:
+  PlyData(const std::string& bytes, const PlyHeader& h, const std::string& name)
+      : bytes_(bytes), pos_(h.data_start), line_(h.data_line), ascii_(h.format == "ascii"),
+        swap_(h.format == "binary_big_endian"), name_(name) {}
+
+  [[nodiscard]] std::uint64_t remaining() const { return bytes_.size() - std::min(pos_, bytes_.size()); }
+
+  /// Reads one value of `datatype` into out (native byte order); `what` names it for messages.
+  void value(std::uint8_t datatype, std::uint8_t* out, const Where& what) {
+    if (ascii_) {
+      const auto t = token(what);
+      if (!store_value(t, datatype, out))
+        throw UserError(name_ + ", line " + std::to_string(line_) + ": " + what.str() + " '" + shown(t) + "' is not a number of its type");
+      return;
+    }
+    const std::size_t n = type_size(datatype);
+    if (remaining() < n) throw truncated(what);
+    std::memcpy(out, bytes_.data() + pos_, n);
+    if (swap_) std::reverse(out, out + n);
+    pos_ += n;
+  }
+
+  /// Skips one property (a scalar, or a list with its items).
+  void skip(const PlyProperty& p, const Where& what) {
+    if (p.count_type == 0) {
+      skip_values(p.type, 1, what);
+      return;
+    }
+    std::uint8_t buf[8] = {};
+    value(p.count_type, buf, what);
+    const auto n = count_value(buf, p.count_type);
+    if (!n) throw UserError(name_ + ": " + what.str() + " has a negative list count (corrupt)");
+    skip_values(p.type, *n, what);
+  }
+
+  [[nodiscard]] UserError truncated(const Where& what) const {
+    return UserError(name_ + ": the file ends before " + what.str() + " (truncated or corrupt)");
+  }
+
+ private:
+  void skip_values(std::uint8_t datatype, std::uint64_t n, const Where& what) {
+    if (ascii_) {
+      for (std::uint64_t i = 0; i < n; ++i) (void)token(what);
+      return;
+    }
+    const std::uint64_t size = type_size(datatype);
+    if (n > remaining() / size) throw truncated(what);
+    pos_ += n * size;
+  }
+
+  std::string_view token(const Where& what) {
+    while (pos_ < bytes_.size() && (bytes_[pos_] == ' ' || bytes_[pos_] == '\t' || bytes_[pos_] == '\r' || bytes_[pos_] == '\n')) {
+      if (bytes_[pos_] == '\n') ++line_;
+      ++pos_;
+    }
+    const std::size_t start = pos_;
+    while (pos_ < bytes_.size() && bytes_[pos_] != ' ' && bytes_[pos_] != '\t' && bytes_[pos_] != '\r' && bytes_[pos_] != '\n') ++pos_;
+    if (pos_ == start) throw truncated(what);
+    return std::string_view(bytes_.data() + start, pos_ - start);
+  }
+
+  const std::string& bytes_;
+  std::size_t pos_;
+  std::size_t line_;
+  bool ascii_;
+  bool swap_;
+  const std::string& name_;
+};
+
+}  // namespace
+
+pcl::PCLPointCloud2 parse_ply(const std::string& bytes, const std::string& name) {
+  const PlyHeader h = parse_ply_header(bytes, name);
+  const auto vertex = std::find_if(h.elements.begin(), h.elements.end(), [](const auto& e) { return e.name == "vertex"; });
+  if (vertex == h.elements.end()) throw UserError(name + ": the PLY file has no vertex element");
+  if (vertex->count > std::numeric_limits<std::uint32_t>::max())
+    throw UserError(name + ": the PLY header claims " + std::to_string(vertex->count) + " vertices (at most " +
+                    std::to_string(std::numeric_limits<std::uint32_t>::max()) + ")");
+  PlyData data(bytes, h, name);
+  // Elements before the vertices (rare) are skipped, each checked against the file as it goes.
+  for (auto e = h.elements.begin(); e != vertex; ++e)
+    for (std::uint64_t i = 0; i < e->count && !e->properties.empty(); ++i)
+      for (const auto& p : e->properties) data.skip(p, Where{e->name, i, p.name});
+
+  pcl::PCLPointCloud2 blob;
+  std::uint64_t step = 0;
+  std::uint64_t min_bytes = 0;  // the fewest bytes one vertex takes in the file
+  const bool ascii = h.format == "ascii";
+  for (const auto& p : vertex->properties) {
+    min_bytes += ascii ? 2 : type_size(p.count_type ? p.count_type : p.type);
+    if (p.count_type) continue;
+    pcl::PCLPointField f;
+    f.name = p.name == "nx" ? "normal_x" : p.name == "ny" ? "normal_y" : p.name == "nz" ? "normal_z" : p.name;
+    f.offset = static_cast<std::uint32_t>(step);
+    f.datatype = p.type;
+    f.count = 1;
+    blob.fields.push_back(f);
+    step += type_size(p.type);
+  }
+  if (vertex->properties.empty() || vertex->properties.size() > 4096)
+    throw UserError(name + ": the PLY vertex element has " + std::to_string(vertex->properties.size()) + " properties (x, y, z at least)");
+  const std::uint64_t n = vertex->count;
+  blob.width = static_cast<std::uint32_t>(n);
+  blob.height = 1;
+  blob.point_step = static_cast<std::uint32_t>(step);
+  blob.row_step = static_cast<std::uint32_t>(std::min<std::uint64_t>(n * step, std::numeric_limits<std::uint32_t>::max()));
+  blob.is_dense = false;
+  if (n == 0) return blob;
+  // Check the claimed count against the file before allocating for it.
+  const std::uint64_t available = data.remaining();
+  if (min_bytes > 0 && n > (available + 1) / min_bytes)
+    throw UserError(name + ": the header claims " + std::to_string(n) + " vertices (at least " +
+                    std::to_string(n > (1ULL << 62) / min_bytes ? (1ULL << 62) : n * min_bytes) +
+                    " bytes) but the file holds " + std::to_string(available) + " bytes of data: truncated or corrupt");
+  if (n * step > std::numeric_limits<std::uint32_t>::max())
+    throw UserError(name + ": " + std::to_string(n) + " vertices of " + std::to_string(step) + " bytes are implausibly many");
+  blob.data.assign(n * step, 0);
+  for (std::uint64_t i = 0; i < n; ++i) {
+    std::uint8_t* out = blob.data.data() + i * step;
+    for (const auto& p : vertex->properties) {
+      if (p.count_type) {
+        data.skip(p, Where{vertex->name, i, p.name});
+        continue;
+      }
+      data.value(p.type, out, Where{vertex->name, i, p.name});
+      out += type_size(p.type);
+    }
+  }
+  return blob;
+}
+
+pcl::PCLPointCloud2 read_pcd(const std::filesystem::path& file) { return parse_pcd(read_file(file), file.string()); }
+
+pcl::PCLPointCloud2 read_ply(const std::filesystem::path& file) { return parse_ply(read_file(file), file.string()); }
 
 }  // namespace fettle::vision::detail
