@@ -251,5 +251,5 @@ TEST_F(CloudReaders, PlyDataMistakesAreNamed) {
   const std::string neg = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty list char float q\nproperty float x\n"
                           "property float y\nproperty float z\nend_header\n" + std::string(1, '\xff') + std::string(12, '\0');
   EXPECT_THAT([&] { (void)load_cloud(write("neg.ply", neg)); },
-              ::testing::ThrowsMessage<UserError>(HasSubstr("vertex 0 property 'q' has a negative list count")));
+              ::testing::ThrowsMessage<UserError>(HasSubstr("vertex 0 property 'q' has a list count that is negative")));
 }

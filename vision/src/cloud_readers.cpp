@@ -448,7 +448,9 @@ PlyHeader parse_ply_header(const std::string& bytes, const std::string& name) {
         p.type = ply_datatype(std::string(words[1]));
         p.name = std::string(words[2]);
       }
-      if (p.name.empty() || p.type == 0 || (list && p.count_type == 0))
+      const bool integer_count = p.count_type != 0 && p.count_type != pcl::PCLPointField::FLOAT32 &&
+                                 p.count_type != pcl::PCLPointField::FLOAT64;
+      if (p.name.empty() || p.type == 0 || (list && !integer_count))
         throw fail("property '" + shown(*line) + "' has an unknown type (or is not 'property TYPE NAME' or "
                    "'property list COUNT_TYPE TYPE NAME')");
       h.elements.back().properties.push_back(p);
@@ -510,7 +512,7 @@ class PlyData {
     std::uint8_t buf[8] = {};
     value(p.count_type, buf, what);
     const auto n = count_value(buf, p.count_type);
-    if (!n) throw UserError(name_ + ": " + what.str() + " has a negative list count (corrupt)");
+    if (!n) throw UserError(name_ + ": " + what.str() + " has a list count that is negative or not an integer (corrupt)");
     skip_values(p.type, *n, what);
   }
 
