@@ -206,9 +206,9 @@ TEST_F(CloudBadInput, PlyHeaderLinesPclWouldMisreadAreRefused) {
   auto with = [&](const std::string& from, const std::string& to) { return std::string(good).replace(good.find(from), from.size(), to); };
   const std::vector<std::pair<std::string, std::string>> cases = {
       {with("element vertex 1", "element vertex -5"), "line 3: element 'vertex' has count '-5', not a whole number"},
-      {with("property float y", "property flaot y"), "line 5: property 'property flaot y' has an unknown type"},
+      {with("property float y", "property flaot y"), "line 5: property 'y' of element 'vertex' has an unknown type"},
       {with("format binary_little_endian", "format binary_middle_endian"), "line 2: format 'binary_middle_endian' is not"},
-      {with("property float z\n", "property float z\nproperty list uchar quad idx\n"), "line 7: property 'property list uchar quad idx' has an unknown type"},
+      {with("property float z\n", "property float z\nproperty list uchar quad idx\n"), "line 7: property 'idx' of element 'vertex' has an unknown type"},
       {with("element vertex 1\n", "property float w\nelement vertex 1\n"), "line 3: property 'property float w' comes before any element"},
       {with("end_header", "`ormat 1ai\nend_header"), "line 7: unknown line '`ormat 1ai'"},
   };

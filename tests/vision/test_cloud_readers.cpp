@@ -251,5 +251,30 @@ TEST_F(CloudReaders, PlyDataMistakesAreNamed) {
   const std::string neg = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty list char float q\nproperty float x\n"
                           "property float y\nproperty float z\nend_header\n" + std::string(1, '\xff') + std::string(12, '\0');
   EXPECT_THAT([&] { (void)load_cloud(write("neg.ply", neg)); },
-              ::testing::ThrowsMessage<UserError>(HasSubstr("vertex 0 property 'q' has a list count that is negative")));
+              ::testing::ThrowsMessage<UserError>(HasSubstr("vertex 0 property 'q' has a negative list count")));
+}
+
+TEST_F(CloudReaders, WhatOtherWritersWriteIsRead) {
+  // PCL writes bool fields as TYPE B SIZE 1; some writers use lower-case type letters; PCD .5
+  // files may have FIELDS without SIZE and TYPE (every field F 4).
+  const Cloud b = load_cloud(write("bool.pcd", "VERSION 0.7\nFIELDS x y z valid\nSIZE 4 4 4 1\nTYPE f F F B\nCOUNT 1 1 1 1\n"
+                                               "WIDTH 2\nHEIGHT 1\nPOINTS 2\nDATA ascii\n1 2 3 1\n4 5 6 0\n"));
+  ASSERT_EQ(b.size(), 2U);
+  EXPECT_EQ(b.points[1], Eigen::Vector3f(4, 5, 6));
+  const Cloud v5 = load_cloud(write("v5_no_size.pcd", "VERSION .5\nFIELDS x y z\nPOINTS 1\nDATA ascii\n7 8 9\n"));
+  ASSERT_EQ(v5.size(), 1U);
+  EXPECT_EQ(v5.points[0], Eigen::Vector3f(7, 8, 9));
+  // A PLY element after the vertices is not read, so a type Fettle does not know there is fine.
+  const Cloud faces = load_cloud(write("faces_unknown.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
+                                                            "property float y\nproperty float z\nelement face 1\n"
+                                                            "property list uchar quad idx\nend_header\n1 2 3\n"));
+  EXPECT_EQ(faces.size(), 1U);
+}
+
+TEST_F(CloudReaders, AHugeHeaderLineIsRefusedWithoutReadingIt) {
+  const std::string fields(200000, 'a');
+  EXPECT_THAT([&] { (void)load_cloud(write("long.pcd", "VERSION 0.7\nFIELDS " + fields + "\nDATA ascii\n")); },
+              ::testing::ThrowsMessage<UserError>(HasSubstr("line 2: a line of 200007 bytes")));
+  EXPECT_THAT([&] { (void)load_cloud(write("long.ply", "ply\ncomment " + fields + "\nend_header\n")); },
+              ::testing::ThrowsMessage<UserError>(HasSubstr("line 2: a line of 200008 bytes")));
 }

@@ -2,6 +2,7 @@
 #include "cloud_readers.hpp"
 
 #include <algorithm>
+#include <cctype>
 #include <charconv>
 #include <cstdint>
 #include <cstring>
@@ -20,14 +21,16 @@ namespace fettle::vision::detail {
 namespace {
 
 constexpr std::size_t kMaxHeaderBytes = 1 << 20;  // a real header is a few hundred bytes
+constexpr std::size_t kMaxHeaderLine = 1 << 16;
 constexpr std::uint64_t kMaxCount = 1 << 16;      // values per field (FPFH has 33, VFH 308)
 // LZF (binary_compressed) expands at most 88 times (a 3-byte back reference yields 264 bytes).
 constexpr std::uint64_t kMaxLzfRatio = 100;
 
-std::vector<std::string_view> split(std::string_view line) {
+/// The words of a line; at most `limit` of them (the rest is not looked at).
+std::vector<std::string_view> split(std::string_view line, std::size_t limit = std::numeric_limits<std::size_t>::max()) {
   std::vector<std::string_view> out;
   std::size_t i = 0;
-  while (i < line.size()) {
+  while (i < line.size() && out.size() < limit) {
     while (i < line.size() && (line[i] == ' ' || line[i] == '\t')) ++i;
     const std::size_t start = i;
     while (i < line.size() && line[i] != ' ' && line[i] != '\t') ++i;
@@ -56,6 +59,7 @@ std::uint8_t datatype_of(char type, std::uint64_t size) {
   if (type == 'I') return size == 1 ? F::INT8 : size == 2 ? F::INT16 : size == 4 ? F::INT32 : size == 8 ? F::INT64 : 0;
   if (type == 'U') return size == 1 ? F::UINT8 : size == 2 ? F::UINT16 : size == 4 ? F::UINT32 : size == 8 ? F::UINT64 : 0;
   if (type == 'F') return size == 4 ? F::FLOAT32 : size == 8 ? F::FLOAT64 : 0;
+  if (type == 'B') return size == 1 ? F::UINT8 : 0;  // bool, as PCL writes it: read as 0 / 1
   return 0;
 }
 
@@ -133,6 +137,7 @@ Header parse_header(const std::string& bytes, const std::string& name) {
     std::string_view line(bytes.data() + pos, end - pos);
     pos = end + 1;
     ++line_no;
+    if (line.size() > kMaxHeaderLine) throw fail("a line of " + std::to_string(line.size()) + " bytes: not a PCD file, or corrupt");
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
     if (std::any_of(line.begin(), line.end(), [](char c) { return static_cast<unsigned char>(c) < 0x20 && c != '\t'; }))
       throw fail("'" + shown(line) + "' has binary bytes: not a PCD file, or corrupt");
@@ -161,9 +166,9 @@ Header parse_header(const std::string& bytes, const std::string& name) {
       }
     } else if (canonical == "TYPE") {
       for (const auto v : values) {
-        if (v.size() != 1 || (v[0] != 'I' && v[0] != 'U' && v[0] != 'F'))
-          throw fail("TYPE value '" + shown(v) + "' is not I, U or F");
-        h.types.push_back(v[0]);
+        const char t = v.size() == 1 ? static_cast<char>(std::toupper(static_cast<unsigned char>(v[0]))) : '?';
+        if (t != 'I' && t != 'U' && t != 'F' && t != 'B') throw fail("TYPE value '" + shown(v) + "' is not I, U, F or B");
+        h.types.push_back(t);
       }
     } else if (canonical == "WIDTH" || canonical == "HEIGHT" || canonical == "POINTS") {
       const auto n = parse_uint(values[0]);
@@ -187,6 +192,10 @@ Header parse_header(const std::string& bytes, const std::string& name) {
   };
   if (h.fields.empty()) throw fail_fields("no FIELDS line");
   const std::size_t n = h.fields.size();
+  if (h.sizes.empty() && h.types.empty()) {  // PCD .5 files may have neither: every field is F 4
+    h.sizes.assign(n, 4);
+    h.types.assign(n, 'F');
+  }
   if (h.sizes.size() != n) throw fail_fields("FIELDS names " + std::to_string(n) + " fields, SIZE gives " + std::to_string(h.sizes.size()));
   if (h.types.size() != n) throw fail_fields("FIELDS names " + std::to_string(n) + " fields, TYPE gives " + std::to_string(h.types.size()));
   if (h.counts.empty()) h.counts.assign(n, 1);  // COUNT is optional (PCD .5)
@@ -194,7 +203,7 @@ Header parse_header(const std::string& bytes, const std::string& name) {
   for (std::size_t i = 0; i < n; ++i) {
     if (datatype_of(h.types[i], h.sizes[i]) == 0)
       throw fail_fields("field '" + shown(h.fields[i]) + "' has TYPE " + h.types[i] + " with SIZE " + std::to_string(h.sizes[i]) +
-                        " (I and U take 1, 2, 4 or 8 bytes, F takes 4 or 8)");
+                        " (I and U take 1, 2, 4 or 8 bytes, F takes 4 or 8, B takes 1)");
     if (h.counts[i] == 0 || h.counts[i] > kMaxCount)
       throw fail_fields("field '" + shown(h.fields[i]) + "' has COUNT " + std::to_string(h.counts[i]) + " (1 to " +
                         std::to_string(kMaxCount) + ")");
@@ -247,7 +256,9 @@ pcl::PCLPointCloud2 parse_pcd(const std::string& bytes, const std::string& name)
                      " bytes), the file holds " + std::to_string(available) + " bytes of point data (truncated or corrupt)");
   };
   constexpr std::uint64_t kHuge = std::numeric_limits<std::uint64_t>::max() / 4;
-  if (n > kHuge / step) throw too_short(kHuge, "");
+  const UserError too_many(name + ": the header announces " + std::to_string(*h.width) + " x " + std::to_string(*h.height) +
+                           " points of " + std::to_string(step) + " bytes: more than any file could hold (corrupt header)");
+  if (n > kHuge / step) throw too_many;
   const std::uint64_t total = n * step;
 
   if (h.data == "binary") {
@@ -268,8 +279,12 @@ pcl::PCLPointCloud2 parse_pcd(const std::string& bytes, const std::string& name)
       throw UserError(name + ": binary_compressed PCD: the data says it uncompresses to " + std::to_string(uncompressed) +
                       " bytes, the header's " + std::to_string(n) + " points of " + std::to_string(step) + " bytes need " +
                       std::to_string(total) + " (corrupt)");
-    if (compressed > available - 8 || total > static_cast<std::uint64_t>(compressed) * kMaxLzfRatio)
-      throw too_short(total, "uncompressed;");
+    if (compressed > available - 8)
+      throw UserError(name + ": binary_compressed PCD: the data says it holds " + std::to_string(compressed) +
+                      " compressed bytes, the file has " + std::to_string(available - 8) + " (truncated or corrupt)");
+    if (total > static_cast<std::uint64_t>(compressed) * kMaxLzfRatio)
+      throw UserError(name + ": binary_compressed PCD: " + std::to_string(compressed) + " compressed bytes cannot hold the " +
+                      std::to_string(total) + " bytes the header's points need (LZF expands at most ~90 times; corrupt)");
     std::vector<std::uint8_t> soa(total);
     const unsigned got = pcl::lzfDecompress(bytes.data() + h.data_start + 8, compressed, soa.data(), uncompressed);
     if (got != uncompressed)
@@ -288,8 +303,8 @@ pcl::PCLPointCloud2 parse_pcd(const std::string& bytes, const std::string& name)
 
   // ascii: one point per line, its values separated by spaces or tabs. Every value takes a
   // character and a separator at least: check that before allocating the points.
-  if (n > kHuge / (2 * values_per_point) || n * values_per_point * 2 > available + 1)
-    throw too_short(n > kHuge / (2 * values_per_point) ? kHuge : n * values_per_point * 2, "as text");
+  if (n > kHuge / (2 * values_per_point)) throw too_many;
+  if (n * values_per_point * 2 > available + 1) throw too_short(n * values_per_point * 2, "as text");
   blob.data.assign(total, 0);
   std::size_t pos = h.data_start;
   std::size_t line_no = h.data_line - 1;
@@ -302,10 +317,11 @@ pcl::PCLPointCloud2 parse_pcd(const std::string& bytes, const std::string& name)
     pos = end + 1;
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
-    words = split(line);
+    words = split(line, values_per_point + 1);
     if (words.empty()) continue;
     if (words.size() != values_per_point)
-      throw UserError(name + ", line " + std::to_string(line_no) + ": " + std::to_string(words.size()) +
+      throw UserError(name + ", line " + std::to_string(line_no) + ": " +
+                      (words.size() > values_per_point ? "more than " + std::to_string(values_per_point) : std::to_string(words.size())) +
                       " values, the header's fields need " + std::to_string(values_per_point) + " per point");
     std::uint8_t* out = blob.data.data() + read * step;
     std::size_t w = 0;
@@ -326,9 +342,12 @@ namespace {
 
 std::string read_file(const std::filesystem::path& file) {
   std::ifstream in(file, std::ios::binary);
-  if (!in) throw UserError(file.string() + ": cannot open (check it exists and is readable)");
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (in.bad()) throw UserError(file.string() + ": read error");
+  std::error_code ec;
+  const auto size = std::filesystem::file_size(file, ec);
+  if (!in || ec) throw UserError(file.string() + ": cannot open (check it exists and is readable)");
+  std::string bytes(size, '\0');
+  in.read(bytes.data(), static_cast<std::streamsize>(size));
+  if (static_cast<std::uintmax_t>(in.gcount()) != size) throw UserError(file.string() + ": read error (the file changed while it was read?)");
   return bytes;
 }
 
@@ -338,6 +357,7 @@ struct PlyProperty {
   std::string name;
   std::uint8_t type = 0;        // PCLPointField datatype of the value (of the items, for a list)
   std::uint8_t count_type = 0;  // a list's count type, 0 for a scalar
+  std::size_t line = 0;         // where the header declares it
 };
 
 struct PlyElement {
@@ -404,6 +424,9 @@ PlyHeader parse_ply_header(const std::string& bytes, const std::string& name) {
     std::string_view line(bytes.data() + pos, end - pos);
     pos = end + 1;
     ++line_no;
+    if (line.size() > kMaxHeaderLine)
+      throw UserError(name + ": the PLY header, line " + std::to_string(line_no) + ": a line of " + std::to_string(line.size()) +
+                      " bytes: not a PLY file, or corrupt");
     if (!line.empty() && line.back() == '\r') line.remove_suffix(1);
     return line;
   };
@@ -433,12 +456,13 @@ PlyHeader parse_ply_header(const std::string& bytes, const std::string& name) {
       const std::string element = words.size() > 1 ? std::string(words[1]) : std::string();
       const std::string_view t = words.size() > 2 ? words[2] : std::string_view();
       const auto n = parse_uint(t);
-      if (element.empty() || words.size() != 3 || !n)
-        throw fail("element '" + shown(element) + "' has count '" + shown(t) + "', not a whole number");
+      if (element.empty() || !n) throw fail("element '" + shown(element) + "' has count '" + shown(t) + "', not a whole number");
+      if (words.size() != 3) throw fail("'" + shown(*line) + "' is not 'element NAME COUNT'");
       h.elements.push_back(PlyElement{element, *n, {}});
     } else if (key == "property") {
       if (h.elements.empty()) throw fail("property '" + shown(*line) + "' comes before any element");
       PlyProperty p;
+      p.line = line_no;
       const bool list = words.size() > 1 && words[1] == "list";
       if (list && words.size() == 5) {
         p.count_type = ply_datatype(std::string(words[2]));
@@ -450,9 +474,11 @@ PlyHeader parse_ply_header(const std::string& bytes, const std::string& name) {
       }
       const bool integer_count = p.count_type != 0 && p.count_type != pcl::PCLPointField::FLOAT32 &&
                                  p.count_type != pcl::PCLPointField::FLOAT64;
-      if (p.name.empty() || p.type == 0 || (list && !integer_count))
-        throw fail("property '" + shown(*line) + "' has an unknown type (or is not 'property TYPE NAME' or "
-                   "'property list COUNT_TYPE TYPE NAME')");
+      if (p.name.empty())
+        throw fail("'" + shown(*line) + "' is not 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME'");
+      // An unknown type is refused when the reader needs the property: in the vertex element or
+      // an element before it (checked in parse_ply); elements after the vertices are not read.
+      if (list && !integer_count) p.type = 0;
       h.elements.back().properties.push_back(p);
     } else {
       throw fail("unknown line '" + shown(*line) + "': not a PLY file, or corrupt");
@@ -512,7 +538,9 @@ class PlyData {
     std::uint8_t buf[8] = {};
     value(p.count_type, buf, what);
     const auto n = count_value(buf, p.count_type);
-    if (!n) throw UserError(name_ + ": " + what.str() + " has a list count that is negative or not an integer (corrupt)");
+    if (!n)
+      throw UserError(name_ + (ascii_ ? ", line " + std::to_string(line_) : std::string()) + ": " + what.str() +
+                      " has a negative list count (corrupt)");
     skip_values(p.type, *n, what);
   }
 
@@ -556,6 +584,12 @@ pcl::PCLPointCloud2 parse_ply(const std::string& bytes, const std::string& name)
   const PlyHeader h = parse_ply_header(bytes, name);
   const auto vertex = std::find_if(h.elements.begin(), h.elements.end(), [](const auto& e) { return e.name == "vertex"; });
   if (vertex == h.elements.end()) throw UserError(name + ": the PLY file has no vertex element");
+  for (auto e = h.elements.begin(); e != vertex + 1; ++e)
+    for (const auto& p : e->properties)
+      if (p.type == 0)
+        throw UserError(name + ": the PLY header, line " + std::to_string(p.line) + ": property '" + shown(p.name) + "' of element '" +
+                        shown(e->name) + "' has an unknown type (char, uchar, short, ushort, int, uint, float, double or their "
+                        "sized names; a list's count an integer type)");
   if (vertex->count > std::numeric_limits<std::uint32_t>::max())
     throw UserError(name + ": the PLY header claims " + std::to_string(vertex->count) + " vertices (at most " +
                     std::to_string(std::numeric_limits<std::uint32_t>::max()) + ")");
@@ -580,8 +614,10 @@ pcl::PCLPointCloud2 parse_ply(const std::string& bytes, const std::string& name)
     blob.fields.push_back(f);
     step += type_size(p.type);
   }
-  if (vertex->properties.empty() || vertex->properties.size() > 4096)
-    throw UserError(name + ": the PLY vertex element has " + std::to_string(vertex->properties.size()) + " properties (x, y, z at least)");
+  if (vertex->properties.size() > 4096)
+    throw UserError(name + ": the PLY vertex element has " + std::to_string(vertex->properties.size()) + " properties (implausibly many)");
+  if (std::none_of(vertex->properties.begin(), vertex->properties.end(), [](const auto& p) { return p.count_type == 0; }))
+    throw UserError(name + ": the PLY vertex element has no scalar properties (x, y, z at least)");
   const std::uint64_t n = vertex->count;
   blob.width = static_cast<std::uint32_t>(n);
   blob.height = 1;
