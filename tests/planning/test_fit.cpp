@@ -21,11 +21,16 @@ std::vector<Vec3> plane_points(const Vec3& normal, double d, int n, double noise
   const Vec3 e1 = nrm.unitOrthogonal(), e2 = nrm.cross(e1);
   std::vector<Vec3> pts;
   for (int i = 0; i < n; ++i) {
+    // The draws are sequenced (C++ leaves the order of arguments and operands unspecified: gcc
+    // drew these right to left, clang left to right, and the two saw different data); the
+    // order is gcc's, the one the expectations below were measured with.
     if (i < static_cast<int>(outlier_fraction * n)) {
-      pts.emplace_back(u(rng), u(rng), u(rng));
+      const double z = u(rng), y = u(rng), x = u(rng);
+      pts.emplace_back(x, y, z);
       continue;
     }
-    Vec3 p = -d / normal.norm() * nrm + u(rng) * e1 + u(rng) * e2;
+    const double b = u(rng), a = u(rng);
+    Vec3 p = -d / normal.norm() * nrm + a * e1 + b * e2;
     if (noise > 0) p += g(rng) * nrm;
     pts.push_back(p);
   }

@@ -77,7 +77,10 @@ Errors measure(const SdfGrid& grid, int n, unsigned seed) {
       z(s.lo.z() - 2, s.hi.z() + 15);
   Errors e;
   for (int k = 0; k < n; ++k) {
-    const Vec3 p(x(rng), y(rng), z(rng));
+    // Sequenced draws, in the order gcc evaluated Vec3(x(rng), y(rng), z(rng)) (right to left;
+    // clang goes left to right and measured other points): the figures below are from it.
+    const double pz = z(rng), py = y(rng), px = x(rng);
+    const Vec3 p(px, py, pz);
     const double truth = s.exact(p);
     const auto v = grid.interpolated(p);
     if (!v) {

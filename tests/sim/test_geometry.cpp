@@ -30,7 +30,8 @@ TEST(SimGeometry, RiserVolumeMatchesTheCylinderWithinTwoPercent) {
   const double d = 0.5 * (f.diameter_mm.min + f.diameter_mm.max), h = 0.5 * (f.height_mm.min + f.height_mm.max);
   // A tilted plane top: the mean height over the disc is the centre height.
   const double expected = pi() * d * d / 4 * h;
-  const auto& r = region(c.material(), "riser");
+  const auto material = c.material();  // by value: keep it while r refers into it
+  const auto& r = region(material, "riser");
   EXPECT_NEAR(r.volume_mm3, expected, 0.02 * expected);
   const double tilt = 0.5 * (f.top_tilt_deg.min + f.top_tilt_deg.max) * pi() / 180;
   EXPECT_NEAR(r.max_height_mm, h + std::tan(tilt) * d / 2, 0.1);
@@ -43,7 +44,8 @@ TEST(SimGeometry, RingFlashVolumeMatchesTheAnnulusWithinTwoPercent) {
   const double R = f.cylinder.radius_mm, e = 0.5 * (f.extent_mm.min + f.extent_mm.max);
   const double t = 0.5 * (f.thickness_mm.min + f.thickness_mm.max);
   const double expected = pi() * ((R + e) * (R + e) - R * R) * t;
-  const auto& r = region(c.material(), f.region);
+  const auto material = c.material();
+  const auto& r = region(material, f.region);
   EXPECT_NEAR(r.volume_mm3, expected, 0.02 * expected);
   EXPECT_NEAR(r.max_height_mm, e, 0.1);
 }
@@ -54,7 +56,8 @@ TEST(SimGeometry, StraightFlashVolumeMatchesTheWallWithinTwoPercent) {
   const auto& f = recipe.geometry.straight_flashes.at(0);
   const double L = 0.5 * (f.length_mm.min + f.length_mm.max), h = 0.5 * (f.height_mm.min + f.height_mm.max);
   const double t = 0.5 * (f.thickness_mm.min + f.thickness_mm.max);
-  const auto& r = region(c.material(), f.region);
+  const auto material = c.material();
+  const auto& r = region(material, f.region);
   EXPECT_NEAR(r.volume_mm3, L * h * t, 0.02 * L * h * t);
 }
 
