@@ -11,6 +11,11 @@ target_compile_options(fettle_options INTERFACE
 if(FETTLE_WERROR)
   target_compile_options(fettle_options INTERFACE $<$<COMPILE_LANGUAGE:CXX>:-Werror>)
 endif()
+# Boost 1.74's Asio enables co_await under clang only with libc++'s <experimental/coroutine>;
+# Debian's clang uses libstdc++ 12, whose <coroutine> works with it (the sanitizer and fuzz builds).
+if(CMAKE_CXX_COMPILER_ID STREQUAL "Clang")
+  target_compile_definitions(fettle_options INTERFACE BOOST_ASIO_HAS_CO_AWAIT=1)
+endif()
 
 # FETTLE_FUZZ: every Fettle target gets libFuzzer's coverage instrumentation (clang only) and,
 # unless FETTLE_SANITIZE says otherwise, ASan + UBSan; the fuzzers in tests/fuzz link -fsanitize=fuzzer.
@@ -36,6 +41,11 @@ if(FETTLE_SANITIZE)
   # (gcc PR middle-end/109224), so that one warning is off in sanitizer builds only.
   if(CMAKE_CXX_COMPILER_ID STREQUAL "GNU")
     target_compile_options(fettle_options INTERFACE $<$<COMPILE_LANGUAGE:CXX>:-Wno-mismatched-new-delete>)
+  endif()
+  # clang 14's UBSan check of indirect call types (-fsanitize=function) cannot compile C++20
+  # coroutines ("Cannot represent a difference across sections"): that one check is off.
+  if(CMAKE_CXX_COMPILER_ID STREQUAL "Clang" AND FETTLE_SANITIZE MATCHES "undefined")
+    target_compile_options(fettle_options INTERFACE -fno-sanitize=function)
   endif()
 endif()
 

@@ -1,4 +1,4 @@
-# fettle_add_test(NAME name SOURCES ... LIBS ... [LABELS unit|integration|slow ...]
+# fettle_add_test(NAME name SOURCES ... LIBS ... [LABELS unit|integration|slow|concurrency ...]
 #                 [RESOURCE_LOCK lock] [TIMEOUT seconds] [ENVIRONMENT ...])
 # One GoogleTest executable, its tests discovered into CTest with labels.
 # Tests find their data through FETTLE_TEST_DATA_DIR and built programs through
