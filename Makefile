@@ -57,7 +57,7 @@ test-tsan: deps
 	      -DCMAKE_C_FLAGS_RELWITHDEBINFO="$(ASAN_FLAGS)" -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="$(ASAN_FLAGS)" \
 	      -DFETTLE_SANITIZE=thread -DFETTLE_BUILD_BENCH=OFF $(CMAKE_ARGS)
 	cmake --build $(TSAN_BUILD_DIR) -j $(JOBS)
-	cd $(TSAN_BUILD_DIR) && TSAN_OPTIONS=$${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1} \
+	cd $(TSAN_BUILD_DIR) && TSAN_OPTIONS=$${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/tests/sanitizers/tsan.supp} \
 	  ctest --output-on-failure -j $(JOBS) --timeout 1800 -L concurrency $(TSAN_CTEST_ARGS)
 
 # libFuzzer targets (clang, build-fuzz), FUZZ_SECONDS each; fails on any crash.
