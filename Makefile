@@ -52,12 +52,14 @@ test-asan: deps
 # under ThreadSanitizer (clang, build-tsan); TSAN_CTEST_ARGS adds ctest arguments.
 TSAN_BUILD_DIR ?= build-tsan
 TSAN_CTEST_ARGS ?=
+# The suppressions are needed while building too: gtest's test discovery runs the programs.
+TSAN_DEFAULT_OPTIONS = halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/tests/sanitizers/tsan.supp
 test-tsan: deps
 	CC=clang CXX=clang++ cmake -S . -B $(TSAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
 	      -DCMAKE_C_FLAGS_RELWITHDEBINFO="$(ASAN_FLAGS)" -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="$(ASAN_FLAGS)" \
 	      -DFETTLE_SANITIZE=thread -DFETTLE_BUILD_BENCH=OFF $(CMAKE_ARGS)
-	cmake --build $(TSAN_BUILD_DIR) -j $(JOBS)
-	cd $(TSAN_BUILD_DIR) && TSAN_OPTIONS=$${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1:suppressions=$(CURDIR)/tests/sanitizers/tsan.supp} \
+	TSAN_OPTIONS=$${TSAN_OPTIONS:-$(TSAN_DEFAULT_OPTIONS)} cmake --build $(TSAN_BUILD_DIR) -j $(JOBS)
+	cd $(TSAN_BUILD_DIR) && TSAN_OPTIONS=$${TSAN_OPTIONS:-$(TSAN_DEFAULT_OPTIONS)} \
 	  ctest --output-on-failure -j $(JOBS) --timeout 1800 -L concurrency $(TSAN_CTEST_ARGS)
 
 # libFuzzer targets (clang, build-fuzz), FUZZ_SECONDS each; fails on any crash.
