@@ -4,7 +4,6 @@
 // crash or allocate gigabytes (checked in a child process with a memory cap).
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
-#include <unistd.h>
 
 #include <cmath>
 #include <cstring>
@@ -16,6 +15,7 @@
 #include "../support/child_process.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/vision/cloud.hpp"
+#include "test_support.hpp"
 
 using fettle::UserError;
 using fettle::test::ChildOutcome;
@@ -27,18 +27,9 @@ namespace fs = std::filesystem;
 
 namespace {
 
-class CloudBadInput : public ::testing::Test {
+class CloudBadInput : public fettle::vision::test::TempFilesTest {
  protected:
-  fs::path write(const std::string& name, const std::string& bytes) {
-    const auto p = fs::temp_directory_path() / ("fettle-cloud-bad-" + std::to_string(::getpid()) + "-" + name);
-    std::ofstream(p, std::ios::binary) << bytes;
-    files_.push_back(p);
-    return p;
-  }
-  void TearDown() override {
-    for (const auto& f : files_) fs::remove(f);
-  }
-  std::vector<fs::path> files_;
+  CloudBadInput() : TempFilesTest("fettle-cloud-bad-") {}
 };
 
 std::string floats(const std::vector<float>& v) {

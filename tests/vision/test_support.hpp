@@ -1,8 +1,14 @@
 #pragma once
 // Shared helpers for the vision tests: data paths, random poses, pose errors.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
 #include <filesystem>
+#include <fstream>
 #include <random>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "fettle/core/geometry.hpp"
 #include "fettle/vision/cloud.hpp"
@@ -10,6 +16,30 @@
 namespace fettle::vision::test {
 
 inline std::filesystem::path data(const std::string& name) { return std::filesystem::path(FETTLE_TEST_DATA_DIR) / name; }
+
+/// A test that writes files into the temp directory (names carry the prefix and the pid) and
+/// removes them afterwards.
+class TempFilesTest : public ::testing::Test {
+ protected:
+  explicit TempFilesTest(std::string prefix) : prefix_(std::move(prefix)) {}
+  std::filesystem::path path(const std::string& name) {
+    const auto p = std::filesystem::temp_directory_path() / (prefix_ + std::to_string(::getpid()) + "-" + name);
+    files_.push_back(p);
+    return p;
+  }
+  std::filesystem::path write(const std::string& name, const std::string& bytes) {
+    const auto p = path(name);
+    std::ofstream(p, std::ios::binary) << bytes;
+    return p;
+  }
+  void TearDown() override {
+    for (const auto& f : files_) std::filesystem::remove(f);
+  }
+
+ private:
+  std::string prefix_;
+  std::vector<std::filesystem::path> files_;
+};
 
 /// A random rigid transform: rotation angle exactly `angle_rad` about a random axis,
 /// translation of length `translation`.

@@ -12,6 +12,7 @@
 #include <string_view>
 #include <vector>
 
+#include <pcl/common/io.h>
 #include <pcl/io/lzf.h>
 
 #include "fettle/core/error.hpp"
@@ -379,16 +380,6 @@ std::uint8_t ply_datatype(const std::string& t) {
   return 0;
 }
 
-std::size_t type_size(std::uint8_t datatype) {
-  using F = pcl::PCLPointField;
-  switch (datatype) {
-    case F::INT8: case F::UINT8: return 1;
-    case F::INT16: case F::UINT16: return 2;
-    case F::INT32: case F::UINT32: case F::FLOAT32: return 4;
-    default: return 8;
-  }
-}
-
 /// A list count read as a whole number, or nothing when it is negative or not whole.
 std::optional<std::uint64_t> count_value(const std::uint8_t* p, std::uint8_t datatype) {
   using F = pcl::PCLPointField;
@@ -522,7 +513,7 @@ class PlyData {
         throw UserError(name_ + ", line " + std::to_string(line_) + ": " + what.str() + " '" + shown(t) + "' is not a number of its type");
       return;
     }
-    const std::size_t n = type_size(datatype);
+    const std::size_t n = pcl::getFieldSize(datatype);
     if (remaining() < n) throw truncated(what);
     std::memcpy(out, bytes_.data() + pos_, n);
     if (swap_) std::reverse(out, out + n);
@@ -554,7 +545,7 @@ class PlyData {
       for (std::uint64_t i = 0; i < n; ++i) (void)token(what);
       return;
     }
-    const std::uint64_t size = type_size(datatype);
+    const std::uint64_t size = pcl::getFieldSize(datatype);
     if (n > remaining() / size) throw truncated(what);
     pos_ += n * size;
   }
@@ -604,7 +595,7 @@ pcl::PCLPointCloud2 parse_ply(const std::string& bytes, const std::string& name)
   std::uint64_t min_bytes = 0;  // the fewest bytes one vertex takes in the file
   const bool ascii = h.format == "ascii";
   for (const auto& p : vertex->properties) {
-    min_bytes += ascii ? 2 : type_size(p.count_type ? p.count_type : p.type);
+    min_bytes += ascii ? 2 : pcl::getFieldSize(p.count_type ? p.count_type : p.type);
     if (p.count_type) continue;
     pcl::PCLPointField f;
     f.name = p.name == "nx" ? "normal_x" : p.name == "ny" ? "normal_y" : p.name == "nz" ? "normal_z" : p.name;
@@ -612,7 +603,7 @@ pcl::PCLPointCloud2 parse_ply(const std::string& bytes, const std::string& name)
     f.datatype = p.type;
     f.count = 1;
     blob.fields.push_back(f);
-    step += type_size(p.type);
+    step += pcl::getFieldSize(p.type);
   }
   if (vertex->properties.size() > 4096)
     throw UserError(name + ": the PLY vertex element has " + std::to_string(vertex->properties.size()) + " properties (implausibly many)");
@@ -642,7 +633,7 @@ pcl::PCLPointCloud2 parse_ply(const std::string& bytes, const std::string& name)
         continue;
       }
       data.value(p.type, out, Where{vertex->name, i, p.name});
-      out += type_size(p.type);
+      out += pcl::getFieldSize(p.type);
     }
   }
   return blob;
