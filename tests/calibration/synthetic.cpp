@@ -7,6 +7,7 @@
 
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include "../support/draws.hpp"
 
 namespace fettle::test {
 
@@ -132,10 +133,10 @@ Transform board_pose_facing_camera(const vision::calibration::BoardSpec& board, 
 
 Transform noise(std::mt19937_64& rng, double sigma_mm, double sigma_deg) {
   std::normal_distribution<double> nt(0.0, sigma_mm), nr(0.0, deg_to_rad(sigma_deg));
-  const Vec3 w(nr(rng), nr(rng), nr(rng));
+  const Vec3 w = fettle::test::draw3<Vec3>(nr, rng);
   Transform T = Transform::Identity();
   if (w.norm() > 0) T.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
-  T.translation() = Vec3(nt(rng), nt(rng), nt(rng));
+  T.translation() = fettle::test::draw3<Vec3>(nt, rng);
   return T;
 }
 
@@ -204,8 +205,9 @@ std::vector<vision::calibration::HandEyeSample> hand_eye_samples(const HandEyeTr
     const double tilt_x = d.single_axis ? 0.0 : deg_to_rad(d.tilt_deg * u(rng));
     const double tilt_y = d.single_axis ? 0.0 : deg_to_rad(d.tilt_deg * u(rng));
     const double spin = deg_to_rad(d.spin_deg * u(rng));
-    const Transform B = board_pose_facing_camera(board, d.distance_mm + d.depth_mm * u(rng), d.lateral_x_mm * u(rng),
-                                                 d.lateral_y_mm * u(rng), tilt_x, tilt_y, spin);
+    const auto a = fettle::test::draws<3>(u, rng);
+    const Transform B = board_pose_facing_camera(board, d.distance_mm + d.depth_mm * a[0], d.lateral_x_mm * a[1],
+                                                 d.lateral_y_mm * a[2], tilt_x, tilt_y, spin);
     const Transform A = truth.T_base_camera * B * truth.T_flange_board.inverse();
     vision::calibration::HandEyeSample s;
     s.name = "pose" + std::to_string(i + 1);
@@ -472,9 +474,10 @@ std::vector<Transform> structured_light_board_poses(const StructuredLightScene& 
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   std::vector<Transform> out;
   for (int tries = 0; tries < 2000 && static_cast<int>(out.size()) < n; ++tries) {
+    const auto a = fettle::test::draws<6>(u, rng);
     const Transform T =
-        test::board_pose_facing_camera(s.board, 500 + 70 * u(rng), 40 + 50 * u(rng), -20 + 40 * u(rng),
-                                       deg_to_rad(30 * u(rng)), deg_to_rad(30 * u(rng)), deg_to_rad(30 * u(rng)));
+        test::board_pose_facing_camera(s.board, 500 + 70 * a[0], 40 + 50 * a[1], -20 + 40 * a[2], deg_to_rad(30 * a[3]),
+                                       deg_to_rad(30 * a[4]), deg_to_rad(30 * a[5]));
     if (board_fits(s, T)) out.push_back(T);
   }
   return out;

@@ -17,6 +17,7 @@
 
 #include "fettle/config/calibration.hpp"
 #include "synthetic.hpp"
+#include "../support/draws.hpp"
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
@@ -69,10 +70,11 @@ std::vector<Transform> board_poses(const vision::calibration::BoardSpec& board, 
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   std::vector<Transform> out;
-  for (int i = 0; i < n; ++i)
-    out.push_back(test::board_pose_facing_camera(board, 470 + 40 * u(rng), 60 * u(rng), 40 * u(rng),
-                                                 deg_to_rad(25 * u(rng)), deg_to_rad(25 * u(rng)),
-                                                 deg_to_rad(40 * u(rng))));
+  for (int i = 0; i < n; ++i) {
+    const auto a = fettle::test::draws<6>(u, rng);
+    out.push_back(test::board_pose_facing_camera(board, 470 + 40 * a[0], 60 * a[1], 40 * a[2], deg_to_rad(25 * a[3]),
+                                                 deg_to_rad(25 * a[4]), deg_to_rad(40 * a[5])));
+  }
   return out;
 }
 
@@ -205,14 +207,15 @@ TEST_F(CalibrateCli, HandEyeFromSphereScans) {
   std::normal_distribution<double> n(0.0, 0.05);
   std::ofstream csv(dir_ / "tcp.csv");
   for (int i = 0; i < 10; ++i) {
-    const Vec3 tcp(150 * u(rng), 120 * u(rng), 60 + 60 * u(rng));
+    const auto a = fettle::test::draws<3>(u, rng);
+    const Vec3 tcp(150 * a[0], 120 * a[1], 60 + 60 * a[2]);
     const Vec3 c = truth.T_base_camera.inverse() * tcp;
     // Every other scan as a PCD file (read through vision::load_cloud), the rest as .xyz text.
     const std::string name = "s" + std::to_string(i) + (i % 2 ? ".pcd" : ".xyz");
     std::ostringstream points;
     int count = 0;
     for (int k = 0; k < 1500; ++k) {
-      Vec3 d(u(rng), u(rng), u(rng));
+      Vec3 d = fettle::test::draw3<Vec3>(u, rng);
       if (d.norm() > 1.0 || d.norm() < 0.01) continue;
       d.normalize();
       if (d.z() > -0.2) continue;  // the half facing the camera (camera looks along +z)

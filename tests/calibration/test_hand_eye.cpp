@@ -9,6 +9,7 @@
 
 #include "fettle/vision/calibration/hand_eye.hpp"
 #include "synthetic.hpp"
+#include "../support/draws.hpp"
 
 using namespace fettle;                       // NOLINT
 using namespace fettle::vision::calibration;  // NOLINT
@@ -421,8 +422,12 @@ std::vector<Vec3> sphere_scan(const Vec3& centre, double radius, double noise_mm
   std::vector<Vec3> pts;
   const Vec3 to_cam = -centre.normalized();
   while (pts.size() < 2000) {
-    Vec3 d(n(rng) + 2 * u(rng) - 1, 2 * u(rng) - 1, 2 * u(rng) - 1);
-    d = Vec3(2 * u(rng) - 1, 2 * u(rng) - 1, 2 * u(rng) - 1);
+    // Sequenced as gcc drew them (tests/support/draws.hpp): four draws the data was measured
+    // with and that are not used, then the direction.
+    (void)fettle::test::draws<3>(u, rng);
+    (void)n(rng);
+    const auto a = fettle::test::draws<3>(u, rng);
+    Vec3 d(2 * a[0] - 1, 2 * a[1] - 1, 2 * a[2] - 1);
     if (d.norm() > 1.0 || d.norm() < 1e-3) continue;
     d.normalize();
     if (d.dot(to_cam) < 0.2) continue;  // only the side facing the camera
@@ -430,8 +435,11 @@ std::vector<Vec3> sphere_scan(const Vec3& centre, double radius, double noise_mm
   }
   if (clutter)
     for (int i = 0; i < 3000; ++i)
-      pts.emplace_back(centre.x() + 300 * (u(rng) - 0.5), centre.y() + 300 * (u(rng) - 0.5),
-                       centre.z() + 150.0 + n(rng));
+    {
+      const double dz = n(rng);
+      const auto a = fettle::test::draws<2>(u, rng);
+      pts.emplace_back(centre.x() + 300 * (a[0] - 0.5), centre.y() + 300 * (a[1] - 0.5), centre.z() + 150.0 + dz);
+    }
   return pts;
 }
 
@@ -462,7 +470,10 @@ TEST(SphereFit, NoSphereIsAnError) {
   std::mt19937_64 rng(13);
   std::uniform_real_distribution<double> u(-100.0, 100.0);
   std::vector<Vec3> plane;
-  for (int i = 0; i < 2000; ++i) plane.emplace_back(u(rng), u(rng), 500.0);
+  for (int i = 0; i < 2000; ++i) {
+    const auto xy = fettle::test::draws<2>(u, rng);
+    plane.emplace_back(xy[0], xy[1], 500.0);
+  }
   SphereFitOptions o;
   o.radius_mm = 25.0;
   const auto r = fit_sphere(plane, o);
@@ -479,12 +490,13 @@ TEST(HandEyeSphere, CentresFromScansGiveTBaseCamera) {
   SphereFitOptions fo;
   fo.radius_mm = 25.0;
   for (int i = 0; i < 12; ++i) {
-    const Vec3 tcp(150 * u(rng), 120 * u(rng), 60 + 60 * u(rng));  // above the table
+    const auto a = fettle::test::draws<3>(u, rng);
+    const Vec3 tcp(150 * a[0], 120 * a[1], 60 + 60 * a[2]);  // above the table
     const Vec3 c_cam = truth.T_base_camera.inverse() * tcp;
     const auto fit = fit_sphere(sphere_scan(c_cam, 25.0, 0.05, rng), fo);
     ASSERT_TRUE(fit.ok()) << fit.error().message;
     samples.push_back(SphereSample{"p" + std::to_string(i + 1),
-                                   tcp + Vec3(tcp_noise(rng), tcp_noise(rng), tcp_noise(rng)), fit->center_mm});
+                                   tcp + fettle::test::draw3<Vec3>(tcp_noise, rng), fit->center_mm});
   }
   const auto r = calibrate_hand_eye_sphere(samples);
   ASSERT_TRUE(r.ok()) << r.error().message;

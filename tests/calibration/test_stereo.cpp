@@ -6,6 +6,7 @@
 
 #include "fettle/vision/calibration/stereo.hpp"
 #include "synthetic.hpp"
+#include "../support/draws.hpp"
 
 using namespace fettle;                       // NOLINT
 using namespace fettle::vision::calibration;  // NOLINT
@@ -21,7 +22,10 @@ std::vector<Eigen::Vector2d> project(const std::vector<Eigen::Vector3d>& pts_cam
   cv::projectPoints(p, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), K, cv::Mat(k.distortion, true), px);
   std::normal_distribution<double> n(0.0, noise_px);
   std::vector<Eigen::Vector2d> out;
-  for (const auto& q : px) out.emplace_back(q.x + n(rng), q.y + n(rng));
+  for (const auto& q : px) {
+    const auto e = fettle::test::draws<2>(n, rng);
+    out.emplace_back(q.x + e[0], q.y + e[1]);
+  }
   return out;
 }
 
@@ -55,9 +59,10 @@ Setup make(double noise_px, std::uint64_t seed) {
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
   for (int i = 0; i < 8; ++i) {
+    const auto a = fettle::test::draws<6>(u, rng);
     const Transform T_camera_board =
-        test::board_pose_facing_camera(board, 500 + 50 * u(rng), 60 + 60 * u(rng), 60 * u(rng),
-                                       deg_to_rad(25 * u(rng)), deg_to_rad(25 * u(rng)), deg_to_rad(30 * u(rng)));
+        test::board_pose_facing_camera(board, 500 + 50 * a[0], 60 + 60 * a[1], 60 * a[2], deg_to_rad(25 * a[3]),
+                                       deg_to_rad(25 * a[4]), deg_to_rad(30 * a[5]));
     std::vector<Eigen::Vector3d> in_cam, in_proj;
     for (const auto& p : pts) {
       in_cam.push_back(T_camera_board * p);

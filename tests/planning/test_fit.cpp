@@ -6,6 +6,7 @@
 #include <random>
 
 #include "fettle/planning/fit.hpp"
+#include "../support/draws.hpp"
 
 namespace fettle::planning {
 namespace {
@@ -78,8 +79,8 @@ TEST(LineFit, RecoversAnExactLineAndRobustlyANoisyOne) {
   std::normal_distribution<double> g(0.0, 0.2);
   std::uniform_real_distribution<double> u(-100.0, 100.0);
   std::vector<Vec3> noisy;
-  for (int i = 0; i < 1000; ++i) noisy.push_back(p0 + i * 0.09 * dir + Vec3(g(rng), g(rng), g(rng)));
-  for (int i = 0; i < 300; ++i) noisy.emplace_back(u(rng), u(rng), u(rng));
+  for (int i = 0; i < 1000; ++i) noisy.push_back(p0 + i * 0.09 * dir + fettle::test::draw3<Vec3>(g, rng));
+  for (int i = 0; i < 300; ++i) noisy.push_back(fettle::test::draw3<Vec3>(u, rng));
   const auto robust = fit_line_ransac(noisy, {1.0, 300, 5});
   ASSERT_TRUE(robust);
   EXPECT_GT(std::abs(robust->direction.dot(dir)), std::cos(0.5 * kPi / 180.0));
@@ -94,10 +95,10 @@ std::vector<Eigen::Vector2d> ellipse_points(const EllipseGeometry& e, int n, dou
   std::vector<Eigen::Vector2d> pts;
   for (int i = 0; i < n; ++i) {
     Eigen::Vector2d p = e.point(arc * i / n);
-    if (noise > 0) p += Eigen::Vector2d(g(rng), g(rng));
+    if (noise > 0) p += fettle::test::draw2<Eigen::Vector2d>(g, rng);
     pts.push_back(p);
   }
-  for (int i = 0; i < outliers; ++i) pts.emplace_back(u(rng), u(rng));
+  for (int i = 0; i < outliers; ++i) pts.push_back(fettle::test::draw2<Eigen::Vector2d>(u, rng));
   return pts;
 }
 

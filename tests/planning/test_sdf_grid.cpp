@@ -10,6 +10,7 @@
 
 #include "fettle/planning/sdf_grid.hpp"
 #include "fettle/planning/surface.hpp"
+#include "../support/draws.hpp"
 
 namespace fettle::planning {
 namespace {
@@ -170,7 +171,8 @@ TEST(SdfGridCache, RoundTripGivesTheSameAnswers) {
   std::mt19937 rng(3);
   std::uniform_real_distribution<double> u(-25, 35);
   for (int k = 0; k < 20000; ++k) {
-    const Vec3 p(u(rng), u(rng), u(rng) / 2);
+    const auto a = fettle::test::draws<3>(u, rng);
+    const Vec3 p(a[0], a[1], a[2] / 2);
     ASSERT_EQ((*loaded)(p), grid(p)) << p.transpose();
   }
   std::filesystem::remove_all(file.parent_path());

@@ -20,6 +20,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "test_support.hpp"
+#include "../support/draws.hpp"
 
 using fettle::UserError;
 using fettle::vision::Cloud;
@@ -44,7 +45,8 @@ pcl::PointCloud<pcl::PointNormal> organized_cloud() {
     p.x = u(rng);
     p.y = u(rng);
     p.z = 600.0f + u(rng);
-    const Eigen::Vector3f n = Eigen::Vector3f(u(rng), u(rng), u(rng) + 150.0f).normalized();
+    const auto a = fettle::test::draws<3>(u, rng);
+    const Eigen::Vector3f n = Eigen::Vector3f(a[0], a[1], a[2] + 150.0f).normalized();
     p.normal_x = n.x();
     p.normal_y = n.y();
     p.normal_z = n.z();

@@ -11,6 +11,7 @@
 #include "fettle/vision/multiview.hpp"
 #include "fettle/vision/preprocess.hpp"
 #include "test_support.hpp"
+#include "../support/draws.hpp"
 
 using namespace fettle::vision;
 using fettle::Transform;
@@ -100,7 +101,8 @@ Cloud scan(const Transform& T_fixture_part, std::mt19937_64& rng, double sigma) 
   Cloud part = transformed(casting(0.35, true, &rng), T_fixture_part);
   std::uniform_real_distribution<float> u(-120.0f, 120.0f);
   for (int i = 0; i < 60000; ++i) {
-    const Eigen::Vector3f p(u(rng), u(rng), 0.0f);
+    const auto xy = fettle::test::draws<2>(u, rng);
+    const Eigen::Vector3f p(xy[0], xy[1], 0.0f);
     const Eigen::Vector3f q = (T_fixture_part.inverse() * p.cast<double>()).cast<float>();
     if (std::abs(q.x()) < 61 && std::abs(q.y()) < 41) continue;  // under the part
     part.points.push_back(p);
@@ -119,8 +121,10 @@ TEST(Inspect, FindsEveryRegionAtTheTruePoseAndMeasuresTheRiser) {
   ASSERT_EQ(templ.regions().size(), 2U);
   std::mt19937_64 rng(7);
   std::uniform_real_distribution<double> off(-3.0, 3.0);
+  const double yaw_deg = off(rng);  // sequenced as gcc drew them (tests/support/draws.hpp)
+  const auto xy = fettle::test::draws<2>(off, rng);
   const Transform T_fixture_part =
-      Eigen::Translation3d(off(rng), off(rng), 0.0) * Eigen::AngleAxisd(fettle::deg_to_rad(off(rng)), Vec3::UnitZ());
+      Eigen::Translation3d(xy[0], xy[1], 0.0) * Eigen::AngleAxisd(fettle::deg_to_rad(yaw_deg), Vec3::UnitZ());
   const auto r = inspect(rec, templ, scan(T_fixture_part, rng, 0.05));
   ASSERT_TRUE(r.ok()) << r.error().message;
   ASSERT_EQ(r->regions.size(), 2U);
@@ -147,7 +151,11 @@ TEST(Inspect, AScanWithoutThePartFailsAndSaysSo) {
   Cloud table;
   std::uniform_real_distribution<float> u(-120.0f, 120.0f);
   std::normal_distribution<float> g(0.0f, 0.05f);
-  for (int i = 0; i < 80000; ++i) table.points.emplace_back(u(rng), u(rng), g(rng));
+  for (int i = 0; i < 80000; ++i) {
+    const float z = g(rng);
+    const auto xy = fettle::test::draws<2>(u, rng);
+    table.points.emplace_back(xy[0], xy[1], z);
+  }
   const auto r = inspect(rec, templ, table);
   ASSERT_FALSE(r.ok());
   // only the table: nothing stands above the fixture plane where the part should be

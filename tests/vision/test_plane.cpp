@@ -6,6 +6,7 @@
 
 #include "fettle/vision/plane.hpp"
 #include "test_support.hpp"
+#include "../support/draws.hpp"
 
 using namespace fettle::vision;
 
@@ -63,11 +64,15 @@ TEST(FitPlane, RecoversASyntheticPlaneAmongClutter) {
   const Eigen::Vector3f n = Eigen::Vector3f(0.1f, -0.2f, 1.0f).normalized();
   const float d = -12.0f;
   for (int i = 0; i < 3000; ++i) {  // plane points
-    Eigen::Vector3f p(u(rng), u(rng), 0.0f);
+    const auto xy = fettle::test::draws<2>(u, rng);
+    Eigen::Vector3f p(xy[0], xy[1], 0.0f);
     p.z() = (-d - n.x() * p.x() - n.y() * p.y()) / n.z() + noise(rng);
     c.points.push_back(p);
   }
-  for (int i = 0; i < 2000; ++i) c.points.emplace_back(u(rng), u(rng), u(rng) + 60.0f);  // clutter
+  for (int i = 0; i < 2000; ++i) {  // clutter
+    const auto a = fettle::test::draws<3>(u, rng);
+    c.points.emplace_back(a[0], a[1], a[2] + 60.0f);
+  }
   PlaneSettings s;
   s.distance = 0.3;
   const auto fit = fit_plane(c, s);

@@ -9,6 +9,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/vision/preprocess.hpp"
 #include "test_support.hpp"
+#include "../support/draws.hpp"
 
 using namespace fettle::vision;
 using ::testing::HasSubstr;
@@ -78,7 +79,10 @@ TEST(StatisticalOutliers, RemovesIsolatedPointsAndKeepsTheSurface) {
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<float> u(0.0f, 50.0f);
   Cloud c;
-  for (int i = 0; i < 5000; ++i) c.points.emplace_back(u(rng), u(rng), 0.0f);
+  for (int i = 0; i < 5000; ++i) {
+    const auto xy = fettle::test::draws<2>(u, rng);
+    c.points.emplace_back(xy[0], xy[1], 0.0f);
+  }
   c.points.emplace_back(25.0f, 25.0f, 40.0f);
   c.points.emplace_back(-30.0f, 10.0f, 5.0f);
   const Cloud k = remove_statistical_outliers(c, 8, 2.5);

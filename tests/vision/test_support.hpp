@@ -12,6 +12,7 @@
 
 #include "fettle/core/geometry.hpp"
 #include "fettle/vision/cloud.hpp"
+#include "../support/draws.hpp"
 
 namespace fettle::vision::test {
 
@@ -45,8 +46,8 @@ class TempFilesTest : public ::testing::Test {
 /// translation of length `translation`.
 inline Transform random_transform(std::mt19937_64& rng, double angle_rad, double translation) {
   std::normal_distribution<double> g(0.0, 1.0);
-  const Vec3 axis = Vec3(g(rng), g(rng), g(rng)).normalized();
-  const Vec3 dir = Vec3(g(rng), g(rng), g(rng)).normalized();
+  const Vec3 axis = fettle::test::draw3<Vec3>(g, rng).normalized();
+  const Vec3 dir = fettle::test::draw3<Vec3>(g, rng).normalized();
   Transform T = Transform::Identity();
   T.linear() = Eigen::AngleAxisd(angle_rad, axis).toRotationMatrix();
   T.translation() = dir * translation;
@@ -57,7 +58,7 @@ inline Cloud with_noise(const Cloud& c, double sigma, std::mt19937_64& rng) {
   std::normal_distribution<float> g(0.0f, static_cast<float>(sigma));
   Cloud out;
   out.points = c.points;
-  for (auto& p : out.points) p += Eigen::Vector3f(g(rng), g(rng), g(rng));
+  for (auto& p : out.points) p += fettle::test::draw3<Eigen::Vector3f>(g, rng);
   return out;
 }
 
