@@ -610,8 +610,13 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
   Rng cr(seed, 0xC1A77E5);
   for (int k = 0; k < g.clutter_items; ++k) {
     for (int attempt = 0; attempt < 50; ++attempt) {
-      const Vec3 size(cr.uniform(8, 40), cr.uniform(8, 40), cr.uniform(2, 18));
-      const Vec3 c(c_nom.x() + cr.uniform(-250, 250), c_nom.y() + cr.uniform(-190, 190), 0.0);
+      // Drawn one per statement, last coordinate first: the order gcc evaluated the former
+      // Vec3(cr.uniform(..), cr.uniform(..), cr.uniform(..)) in, so seeds keep their scenes and
+      // every compiler builds the same one (argument order is unspecified in C++).
+      const double sz = cr.uniform(2, 18), sy = cr.uniform(8, 40), sx = cr.uniform(8, 40);
+      const Vec3 size(sx, sy, sz);
+      const double cy = cr.uniform(-190, 190), cx = cr.uniform(-250, 250);
+      const Vec3 c(c_nom.x() + cx, c_nom.y() + cy, 0.0);
       if (std::abs(c.x() - c_nom.x()) < hx + 45 + size.x() && std::abs(c.y() - c_nom.y()) < hy + 25 + size.y()) continue;
       m->scene.push_back(Box{c - Vec3(size.x() / 2, size.y() / 2, 0), c + Vec3(size.x() / 2, size.y() / 2, size.z())});
       break;

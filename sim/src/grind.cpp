@@ -183,7 +183,9 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
   const std::size_t report_every = std::max<std::size_t>(1, poses.size() / 20);
   for (std::size_t pi = 0; pi < poses.size(); ++pi) {
     const auto& p = poses[pi];
-    const Vec3 noise(rng.gaussian(), rng.gaussian(), rng.gaussian());
+    // z, y, x: gcc's order for the former Vec3(rng.gaussian(), ...), sequenced for every compiler.
+    const double nz = rng.gaussian(), ny = rng.gaussian(), nx = rng.gaussian();
+    const Vec3 noise(nx, ny, nz);
     const Vec3 x_base = p.x + opt.path_noise_mm * noise + opt.path_bias_mm;
     const Vec3 a = (T_part_base.linear() * (p.q * Vec3::UnitZ())).normalized();
     // The TCP is the tool tip (docs/planning.md): a ball's centre is R up the tool axis from it.

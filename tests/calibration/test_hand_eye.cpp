@@ -423,9 +423,11 @@ std::vector<Vec3> sphere_scan(const Vec3& centre, double radius, double noise_mm
   const Vec3 to_cam = -centre.normalized();
   while (pts.size() < 2000) {
     // Sequenced as gcc drew them (tests/support/draws.hpp): four draws the data was measured
-    // with and that are not used, then the direction.
-    (void)fettle::test::draws<3>(u, rng);
+    // with and that are not used (arguments right to left, within the first n before u), then
+    // the direction.
+    (void)fettle::test::draws<2>(u, rng);
     (void)n(rng);
+    (void)u(rng);
     const auto a = fettle::test::draws<3>(u, rng);
     Vec3 d(2 * a[0] - 1, 2 * a[1] - 1, 2 * a[2] - 1);
     if (d.norm() > 1.0 || d.norm() < 1e-3) continue;

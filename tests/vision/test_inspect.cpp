@@ -42,7 +42,11 @@ Cloud casting(double spacing, bool riser, std::mt19937_64* random) {
       std::uniform_real_distribution<float> ua(a0, a1);
       std::uniform_real_distribution<float> ub(b0, b1);
       const auto n = static_cast<std::size_t>(area / (spacing * spacing));
-      for (std::size_t i = 0; i < n; ++i) f(ua(*random), ub(*random));
+      for (std::size_t i = 0; i < n; ++i) {
+        const float b = ub(*random);  // sequenced as gcc drew them (tests/support/draws.hpp)
+        const float a = ua(*random);
+        f(a, b);
+      }
     } else {
       const auto s = static_cast<float>(spacing);
       for (float a = a0; a <= a1; a += s)
