@@ -9,7 +9,9 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -59,13 +61,13 @@ std::string run_output(const std::string& command) {
   return out;
 }
 
-/// FETTLE_TEST_TIME_SCALE (a number >= 1; make test-tsan sets it) stretches every wait of this
-/// file: under ThreadSanitizer fettled and the simulated cell run 5-15 times slower.
+/// FETTLE_TEST_TIME_SCALE (1 to 100; CMake sets 10 in the sanitizer builds) stretches every
+/// wait of this file: under the sanitizers fettled and the simulated cell run several times slower.
 double time_scale() {
   static const double scale = [] {
     const char* env = std::getenv("FETTLE_TEST_TIME_SCALE");
     const double v = env != nullptr ? std::atof(env) : 1.0;
-    return v >= 1.0 ? v : 1.0;
+    return std::isfinite(v) ? std::clamp(v, 1.0, 100.0) : 1.0;
   }();
   return scale;
 }
@@ -94,7 +96,9 @@ std::string cell_toml(const fs::path& dir, int plc, int robot, int spindle) {
     << "pixel_format = \"Coord3D_C16\"\n\n"
     << "[robot]\naddress = \"127.0.0.1\"\nport = " << robot
     << "\ncell_id = \"test-cell\"\nreply_timeout_ms = 2000\nping_period_ms = 500\nmissed_pings = 3\n"
-    << "chunk_points = 20\nrun_timeout_ms = 120000\nreconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
+    // the run timeout stretches too: under TSan the simulated robot grinds a casting in ~215 s
+    << "chunk_points = 20\nrun_timeout_ms = " << static_cast<long>(120000 * time_scale())
+    << "\nreconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
     << "[spindle]\ntransport = \"socketcand\"\naddress = \"127.0.0.1\"\nport = " << spindle
     // heartbeat as in config/cell.sim.toml: the default 300 ms was missed once while the
     // test process (which hosts the simulated drive) built a casting on a busy machine
@@ -212,12 +216,14 @@ class Fettled : public ::testing::Test {
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
     pid_ = 0;
+    reaped_.reset();
     ASSERT_EQ(posix_spawn(&pid_, exe.c_str(), &fa, nullptr, argv.data(), environ), 0);
     posix_spawn_file_actions_destroy(&fa);
   }
 
   /// Waits up to `timeout` for fettled to exit; its wait status, or nullopt if it still runs.
   static std::optional<int> wait_exit(std::chrono::milliseconds timeout) {
+    if (pid_ <= 0) return reaped_;  // alive() already collected it
     int status = 0;
     const bool gone = wait_until([&] { return ::waitpid(pid_, &status, WNOHANG) == pid_; }, timeout);
     if (!gone) return std::nullopt;
@@ -226,22 +232,25 @@ class Fettled : public ::testing::Test {
   }
 
   static void TearDownTestSuite() {
+    // fettled stops on SIGTERM with exit status 0 (what systemd expects); a sanitizer report
+    // during the run or the shutdown makes it non-zero (TSan exits 66, LeakSanitizer 23).
     bool clean_exit = true;
     if (pid_ > 0) {
       ::kill(pid_, SIGTERM);
-      // fettled stops on SIGTERM with exit status 0 (what systemd expects); a sanitizer report
-      // during the run or the shutdown makes it non-zero (TSan's exit code is 66).
-      const auto status = wait_exit(std::chrono::milliseconds(10s));
+      const auto status = wait_exit(10s);
       if (!status.has_value()) {
         ::kill(pid_, SIGKILL);
         ::waitpid(pid_, nullptr, 0);
         pid_ = 0;
         clean_exit = false;
-        ADD_FAILURE() << "fettled did not exit within 10 s of SIGTERM\n" << tail_log();
+        ADD_FAILURE() << "fettled did not exit within " << 10 * time_scale() << " s of SIGTERM\n" << tail_log();
       } else if (!WIFEXITED(*status) || WEXITSTATUS(*status) != 0) {
         clean_exit = false;
         ADD_FAILURE() << "fettled's exit on SIGTERM: wait status " << *status << "\n" << tail_log();
       }
+    } else if (reaped_.has_value()) {  // it had died during a test, which that test reported
+      clean_exit = false;
+      std::cerr << "fettled had exited with wait status " << *reaped_ << "\n";
     }
     delete cell_;
     cell_ = nullptr;
@@ -266,9 +275,16 @@ class Fettled : public ::testing::Test {
     ASSERT_TRUE(alive()) << tail_log();
   }
 
+  /// fettled still runs. If it has exited, its wait status is kept in reaped_ (and pid_ is 0, so
+  /// nothing signals a pid the system may have reused).
   static bool alive() {
+    if (pid_ <= 0) return false;
     int status = 0;
-    return ::waitpid(pid_, &status, WNOHANG) == 0;
+    const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+    if (r == 0) return true;
+    if (r == pid_) reaped_ = status;
+    pid_ = 0;
+    return false;
   }
 
   static std::string tail_log() {
@@ -342,11 +358,13 @@ class Fettled : public ::testing::Test {
   static fs::path dir_;
   static fettle::sim::CellSim* cell_;
   static pid_t pid_;
+  static std::optional<int> reaped_;  ///< fettled's wait status when alive() found it gone
 };
 
 fs::path Fettled::dir_;
 fettle::sim::CellSim* Fettled::cell_ = nullptr;
 pid_t Fettled::pid_ = 0;
+std::optional<int> Fettled::reaped_;
 
 // Each TEST below runs in its own process under ctest (gtest_discover_tests), with its own
 // fettled and simulated cell. A: the three cycles (~330-390 s on the 2-core machine).

@@ -39,10 +39,29 @@ double PreparedCloud::fine_spacing() const { return impl_->fine_spacing; }
 
 namespace {
 
+/// Threads for PCL's OpenMP estimators. One in ThreadSanitizer builds (make test-tsan): libgomp
+/// is not instrumented, so TSan cannot see that its fork and barriers order the workers after
+/// the thread that built the search tree, and reports races that are not there. Fettle's own
+/// threads (detail::parallel_for, the daemon's pool) are std::threads and stay checked.
+unsigned omp_threads(int threads) {
+#if defined(__SANITIZE_THREAD__)
+  constexpr bool tsan = true;
+#elif defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+  constexpr bool tsan = true;
+#else
+  constexpr bool tsan = false;
+#endif
+#else
+  constexpr bool tsan = false;
+#endif
+  return tsan ? 1U : static_cast<unsigned>(std::max(threads, 1));
+}
+
 /// Normals of the coarse cloud over a radius, oriented like the (averaged) fine normals.
 void coarse_normals(Cloud& coarse, double radius, int threads) {
   const auto pc = detail::to_pcl(coarse.points);
-  pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(static_cast<unsigned>(threads));
+  pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> ne(omp_threads(threads));
   ne.setInputCloud(pc);
   ne.setSearchMethod(std::make_shared<pcl::search::KdTree<pcl::PointXYZ>>(false));
   ne.setRadiusSearch(radius);
@@ -78,7 +97,7 @@ PreparedCloud PreparedCloud::prepare(const Cloud& fine, const PrepareSettings& s
     auto normals = std::make_shared<pcl::PointCloud<pcl::Normal>>();
     normals->resize(impl->coarse.size());
     for (std::size_t i = 0; i < impl->coarse.size(); ++i) (*normals)[i].getNormalVector3fMap() = impl->coarse.normals[i];
-    pcl::FPFHEstimationOMP<pcl::PointXYZ, pcl::Normal, Feature> fe(static_cast<unsigned>(threads));
+    pcl::FPFHEstimationOMP<pcl::PointXYZ, pcl::Normal, Feature> fe(omp_threads(threads));
     fe.setInputCloud(pc);
     fe.setInputNormals(normals);
     fe.setSearchMethod(std::make_shared<pcl::search::KdTree<pcl::PointXYZ>>(false));
