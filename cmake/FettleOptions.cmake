@@ -47,6 +47,11 @@ if(FETTLE_SANITIZE)
   if(CMAKE_CXX_COMPILER_ID STREQUAL "Clang" AND FETTLE_SANITIZE MATCHES "undefined")
     target_compile_options(fettle_options INTERFACE -fno-sanitize=function)
   endif()
+  # Code that must know it runs under ThreadSanitizer (vision/src/registration.cpp: PCL's
+  # OpenMP estimators on one thread) tests FETTLE_TSAN.
+  if(FETTLE_SANITIZE STREQUAL "thread")
+    target_compile_definitions(fettle_options INTERFACE FETTLE_TSAN=1)
+  endif()
 endif()
 
 # Third-party headers are included as SYSTEM so their warnings do not drown ours.

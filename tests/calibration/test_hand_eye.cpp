@@ -436,8 +436,7 @@ std::vector<Vec3> sphere_scan(const Vec3& centre, double radius, double noise_mm
     pts.push_back(centre + (radius + n(rng)) * d);
   }
   if (clutter)
-    for (int i = 0; i < 3000; ++i)
-    {
+    for (int i = 0; i < 3000; ++i) {
       const double dz = n(rng);
       const auto a = fettle::test::draws<2>(u, rng);
       pts.emplace_back(centre.x() + 300 * (a[0] - 0.5), centre.y() + 300 * (a[1] - 0.5), centre.z() + 150.0 + dz);

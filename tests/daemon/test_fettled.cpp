@@ -223,12 +223,8 @@ class Fettled : public ::testing::Test {
 
   /// Waits up to `timeout` for fettled to exit; its wait status, or nullopt if it still runs.
   static std::optional<int> wait_exit(std::chrono::milliseconds timeout) {
-    if (pid_ <= 0) return reaped_;  // alive() already collected it
-    int status = 0;
-    const bool gone = wait_until([&] { return ::waitpid(pid_, &status, WNOHANG) == pid_; }, timeout);
-    if (!gone) return std::nullopt;
-    pid_ = 0;
-    return status;
+    if (!wait_until([] { return !alive(); }, timeout)) return std::nullopt;
+    return reaped_;
   }
 
   static void TearDownTestSuite() {
@@ -248,7 +244,7 @@ class Fettled : public ::testing::Test {
         clean_exit = false;
         ADD_FAILURE() << "fettled's exit on SIGTERM: wait status " << *status << "\n" << tail_log();
       }
-    } else if (reaped_.has_value()) {  // it had died during a test, which that test reported
+    } else if (reaped_.has_value()) {  // it had exited before the teardown: a test saw it gone or waited for it
       clean_exit = false;
       std::cerr << "fettled had exited with wait status " << *reaped_ << "\n";
     }

@@ -39,23 +39,18 @@ double PreparedCloud::fine_spacing() const { return impl_->fine_spacing; }
 
 namespace {
 
-/// Threads for PCL's OpenMP estimators. One in ThreadSanitizer builds (make test-tsan): libgomp
-/// is not instrumented, so TSan cannot see that its fork and barriers order the workers after
-/// the thread that built the search tree, and reports races that are not there. Fettle's own
-/// threads (detail::parallel_for, the daemon's pool) are std::threads and stay checked.
+/// Threads for PCL's OpenMP estimators. One in ThreadSanitizer builds (FETTLE_TSAN, from
+/// fettle::options): libgomp is not instrumented, so TSan cannot see that its fork and barriers
+/// order the workers after the thread that built the search tree, and reports races that are
+/// not there. Fettle's own threads (detail::parallel_for, the daemon's pool) are std::threads
+/// and stay checked.
 unsigned omp_threads(int threads) {
-#if defined(__SANITIZE_THREAD__)
-  constexpr bool tsan = true;
-#elif defined(__has_feature)
-#if __has_feature(thread_sanitizer)
-  constexpr bool tsan = true;
+#ifdef FETTLE_TSAN
+  (void)threads;
+  return 1U;
 #else
-  constexpr bool tsan = false;
+  return static_cast<unsigned>(threads);
 #endif
-#else
-  constexpr bool tsan = false;
-#endif
-  return tsan ? 1U : static_cast<unsigned>(std::max(threads, 1));
 }
 
 /// Normals of the coarse cloud over a radius, oriented like the (averaged) fine normals.
