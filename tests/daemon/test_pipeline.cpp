@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -37,6 +38,14 @@ std::vector<View> views_of(const std::vector<sim::Capture>& captures) {
   return v;
 }
 
+/// FNV-1a over the bytes of a point list: names the simulator's golden in the cache key.
+std::uint64_t fnv1a(const std::vector<Eigen::Vector3f>& v) {
+  std::uint64_t h = 14695981039346656037ULL;
+  const auto* bytes = reinterpret_cast<const unsigned char*>(v.data());
+  for (std::size_t i = 0; i < v.size() * sizeof(Eigen::Vector3f); ++i) h = (h ^ bytes[i]) * 1099511628211ULL;
+  return h;
+}
+
 class Pipeline : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -49,10 +58,15 @@ class Pipeline : public ::testing::Test {
       golden.normals.push_back(s.normal);
     }
     lo.golden = golden;
-    lo.golden_identity = "test";
-    // the planner's signed-distance grid (~45 s to build) is kept in the build tree between
-    // runs; its key (a hash of the golden samples and the settings) rejects a stale one
-    lo.sdf_cache_dir = fs::path(FETTLE_BIN_DIR).parent_path() / "test-cache" / "pipeline";
+    // The planner's signed-distance grid (~45 s to build, 13 min under ASan) and the vision
+    // template (1-2 min under ASan) are kept in the build tree between the test processes and
+    // between runs. The grid's key hashes the golden samples and the settings; the template's
+    // names the golden by this identity, so it hashes the samples too: a stale one is rebuilt.
+    lo.golden_identity = "sim golden points " + std::to_string(fnv1a(golden.points)) + " normals " +
+                         std::to_string(fnv1a(golden.normals));
+    const fs::path store = fs::path(FETTLE_BIN_DIR).parent_path() / "test-cache" / "pipeline";
+    lo.sdf_cache_dir = store;
+    lo.template_cache_dir = store / "vision";
     loaded_ = std::make_unique<LoadedRecipe>(load_recipe(recipe, lo));
     cell_ = config::load_cell(fs::path(FETTLE_SOURCE_DIR) / "config/cell.sim.toml");
   }

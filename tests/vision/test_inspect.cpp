@@ -199,6 +199,28 @@ TEST(TemplateCache, SecondLoadComesFromDiskAndMatches) {
   std::filesystem::remove_all(dir);
 }
 
+TEST(TemplateCache, AnExplicitDirectoryCachesARecipeWithoutASourceAndLeavesNoTemporaryFiles) {
+  auto rec = recipe();
+  rec.source.clear();
+  rec.vision.cache = false;  // the explicit directory wins over both
+  const auto dir = std::filesystem::temp_directory_path() / ("fettle-tcache-dir-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  const Cloud golden = casting(0.5, false, nullptr);
+  bool cached = true;
+  (void)PartTemplate::load_or_build(rec, golden, "in memory", &cached, dir);
+  EXPECT_FALSE(cached);
+  ASSERT_TRUE(std::filesystem::exists(dir / "key.txt"));
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << e.path();
+  const auto b = PartTemplate::load_or_build(rec, golden, "in memory", &cached, dir);
+  EXPECT_TRUE(cached);
+  EXPECT_EQ(b.regions().size(), rec.regions.size());
+  // Without the directory nothing is cached: the recipe has no source and its cache is off.
+  (void)PartTemplate::load_or_build(rec, golden, "in memory", &cached);
+  EXPECT_FALSE(cached);
+  std::filesystem::remove_all(dir);
+}
+
 TEST(Excess, ABumpOnAPlaneHasItsVolumeAndHeight) {
   Cloud plane;
   for (float x = -20; x <= 20; x += 0.5f)

@@ -7,6 +7,8 @@
 #include <limits>
 #include <sstream>
 
+#include <unistd.h>
+
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/vision/plane.hpp"
@@ -79,10 +81,13 @@ PartTemplate PartTemplate::build(const config::PartRecipe& recipe, const Cloud& 
 }
 
 PartTemplate PartTemplate::load_or_build(const config::PartRecipe& recipe, const Cloud& golden_part,
-                                         const std::string& golden_identity, bool* from_cache) {
+                                         const std::string& golden_identity, bool* from_cache,
+                                         const std::filesystem::path& cache_dir) {
   if (from_cache != nullptr) *from_cache = false;
-  if (!recipe.vision.cache || recipe.source.empty()) return build(recipe, golden_part);
-  const auto dir = recipe.source.parent_path() / ("." + recipe.source.stem().string() + ".vision-cache");
+  std::filesystem::path dir = cache_dir;
+  if (dir.empty() && recipe.vision.cache && !recipe.source.empty())
+    dir = recipe.source.parent_path() / ("." + recipe.source.stem().string() + ".vision-cache");
+  if (dir.empty()) return build(recipe, golden_part);
   const std::string key = cache_key(recipe, golden_identity, golden_part.size());
   std::error_code ec;
   {
@@ -111,10 +116,16 @@ PartTemplate PartTemplate::load_or_build(const config::PartRecipe& recipe, const
     return t;
   }
   try {
+    // no key while the files change: a reader of the old key must not load the new files
+    std::filesystem::remove(dir / "key.txt", ec);
     t.whole_.save(dir / "whole.bin");
     for (std::size_t i = 0; i < t.regions_.size(); ++i) t.regions_[i].cloud.save(dir / ("region-" + std::to_string(i) + ".bin"));
-    std::ofstream(dir / "key.txt") << key;
-  } catch (const UserError& e) {
+    // the key last and by rename: a reader that sees it sees every file it names
+    const auto key_tmp = dir / ("key.txt.tmp-" + std::to_string(::getpid()));
+    std::ofstream(key_tmp) << key;
+    std::filesystem::rename(key_tmp, dir / "key.txt", ec);
+    if (ec) log::get("vision")->warn("template cache not written: {}: {}", (dir / "key.txt").string(), ec.message());
+  } catch (const std::exception& e) {  // UserError, or a std::filesystem::filesystem_error from a rename
     log::get("vision")->warn("template cache not written: {}", e.what());
   }
   return t;

@@ -13,6 +13,8 @@
 #include <sstream>
 #include <string>
 
+#include <unistd.h>
+
 #include <Eigen/Cholesky>
 #include <Eigen/Geometry>
 #include <pcl/features/fpfh_omp.h>
@@ -140,7 +142,8 @@ bool get_points(std::ifstream& in, std::vector<Eigen::Vector3f>& v) {
 }  // namespace
 
 void PreparedCloud::save(const std::filesystem::path& file) const {
-  const auto tmp = file.string() + ".tmp";
+  // a name of this process's own: two processes filling the same cache never share a file
+  const auto tmp = file.string() + ".tmp-" + std::to_string(::getpid());
   {
     std::ofstream out(tmp, std::ios::binary);
     if (!out) throw UserError(file.string() + ": cannot write the template cache");

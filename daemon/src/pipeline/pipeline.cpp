@@ -209,9 +209,8 @@ LoadedRecipe load_recipe(const config::PartRecipe& recipe, const LoadOptions& op
   }
   if (golden.empty()) throw UserError(where + ": the golden template has no points");
   vision::require_millimetres(golden, "golden template of " + where);
-  out.templ = recipe.vision.cache && !recipe.source.empty()
-                  ? vision::PartTemplate::load_or_build(recipe, golden, out.golden_identity, &out.template_from_cache)
-                  : vision::PartTemplate::build(recipe, golden);
+  out.templ = vision::PartTemplate::load_or_build(recipe, golden, out.golden_identity, &out.template_from_cache,
+                                                  options.template_cache_dir);
   // The planner's signed distance: from the golden samples themselves where they carry normals
   // (the simulator's golden part: exact outward normals), else from the vision template's fine
   // cloud. The template is voxel-averaged, which blends the normals of the two faces at every

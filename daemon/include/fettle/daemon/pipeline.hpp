@@ -61,6 +61,10 @@ struct LoadOptions {
   /// key is a hash of the golden samples and of the settings, so an in-memory golden can be
   /// cached too (bench, fettle-sim trial).
   std::filesystem::path sdf_cache_dir;
+  /// Where the vision template is cached. Empty: `<recipe dir>/.<recipe stem>.vision-cache/`
+  /// when the recipe's vision.cache is on, else not cached. Its key names the golden by
+  /// `golden_identity` (or the golden file's path, size and time), not by its points.
+  std::filesystem::path template_cache_dir;
 };
 
 /// Everything computed once per recipe.

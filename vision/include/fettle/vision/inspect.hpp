@@ -30,10 +30,12 @@ class PartTemplate {
   /// and oriented towards `viewpoint` (part frame; the camera above the part by default).
   static PartTemplate build(const config::PartRecipe& recipe, const Cloud& golden_part,
                             const Eigen::Vector3f& viewpoint = Eigen::Vector3f(0.0f, 0.0f, 1000.0f));
-  /// Like build(), but reuses `<recipe dir>/.<recipe stem>.vision-cache/` when its key
-  /// (golden identity + settings) matches, and writes it otherwise.
+  /// Like build(), but reuses a cached template when its key (golden identity + settings)
+  /// matches, and writes it otherwise. The cache is `cache_dir`, or when that is empty
+  /// `<recipe dir>/.<recipe stem>.vision-cache/` if the recipe's vision.cache is on (else none).
   static PartTemplate load_or_build(const config::PartRecipe& recipe, const Cloud& golden_part,
-                                    const std::string& golden_identity, bool* from_cache = nullptr);
+                                    const std::string& golden_identity, bool* from_cache = nullptr,
+                                    const std::filesystem::path& cache_dir = {});
 
   [[nodiscard]] const PreparedCloud& whole() const { return whole_; }
   [[nodiscard]] const std::vector<RegionTemplate>& regions() const { return regions_; }
