@@ -80,6 +80,7 @@ struct Args {
   double max_rss_growth_pct = 10.0;
   double min_ok_pct = 80.0;  ///< cycles without an injected fault that must end OK or NOK
   int keep_cycles = 30;
+  fs::path planning_cache;  ///< a planning cache to start from (else the one next to the shipped recipe)
 };
 
 std::string read_text(const fs::path& p) {
@@ -330,14 +331,20 @@ class Soak {
       throw fettle::UserError("--fettled " + a_.fettled.string() + ": no such program (build fettled, or name it)");
     const auto shipped = fettle::config::load_cell(a_.config);
     if (shipped.cell.recipes.empty()) throw fettle::UserError(a_.config.string() + ": [[cell.recipes]] is empty");
-    // The recipe in the soak's own directory with its golden template; the planner's grid is
-    // copied from next to the shipped recipe when there is one (fettled rejects a stale one).
+    // The recipe in the soak's own directory with its golden template. When that directory has
+    // no planner's grid yet, it is copied from --planning-cache or from next to the shipped
+    // recipe, whichever has one (fettled rejects a stale one with a warning and rebuilds it).
     const fs::path shipped_part = shipped.cell.recipes.front().file;
     const fs::path part = a_.out / "parts" / shipped_part.filename();
     fs::copy_file(shipped_part, part, fs::copy_options::overwrite_existing);
-    const fs::path cache = shipped_part.parent_path() / ("." + shipped_part.stem().string() + ".planning-cache");
-    if (fs::exists(cache / "sdf-grid.bin") && !fs::exists(part.parent_path() / cache.filename()))
-      fs::copy(cache, part.parent_path() / cache.filename(), fs::copy_options::recursive);
+    const fs::path cache = part.parent_path() / ("." + shipped_part.stem().string() + ".planning-cache");
+    for (const fs::path& from : {a_.planning_cache, shipped_part.parent_path() / cache.filename()}) {
+      if (fs::exists(cache / "sdf-grid.bin")) break;
+      if (from.empty() || !fs::exists(from / "sdf-grid.bin")) continue;
+      fs::remove_all(cache);
+      fs::copy(from, cache, fs::copy_options::recursive);
+      std::printf("soak: planner's grid copied from %s\n", from.c_str());
+    }
     const int golden = run_program({fs::read_symlink("/proc/self/exe").string(), "golden", "--part", part.string()},
                                    a_.out / "golden.log");
     if (golden != 0)
@@ -777,6 +784,9 @@ FETTLE_COMMAND("soak", [](CLI::App& app, const fettle::cli::Common& common) {
   cmd->add_option("--min-ok-pct", a->min_ok_pct, "Share of cycles without an injected fault that must end OK or NOK (%)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 100.0));
+  cmd->add_option("--planning-cache", a->planning_cache,
+                  "Planning cache directory (with sdf-grid.bin) to start from when --out has none yet "
+                  "(default: the one next to the shipped recipe, if any)");
   cmd->add_option("--keep-cycles", a->keep_cycles, "[records] keep_cycles for fettled (records are ~10 MB each)")
       ->capture_default_str()
       ->check(CLI::Range(5, 100000));
