@@ -62,6 +62,7 @@ class Pipeline : public ::testing::Test {
     // template (1-2 min under ASan) are kept in the build tree between the test processes and
     // between runs. The grid's key hashes the golden samples and the settings; the template's
     // names the golden by this identity, so it hashes the samples too: a stale one is rebuilt.
+    // The keys name inputs, not code: a change to how either is built bumps its version.
     lo.golden_identity = "sim golden points " + std::to_string(fnv1a(golden.points)) + " normals " +
                          std::to_string(fnv1a(golden.normals));
     const fs::path store = fs::path(FETTLE_BIN_DIR).parent_path() / "test-cache" / "pipeline";

@@ -207,17 +207,40 @@ TEST(TemplateCache, AnExplicitDirectoryCachesARecipeWithoutASourceAndLeavesNoTem
   std::filesystem::remove_all(dir);
   const Cloud golden = casting(0.5, false, nullptr);
   bool cached = true;
-  (void)PartTemplate::load_or_build(rec, golden, "in memory", &cached, dir);
+  const auto a = PartTemplate::load_or_build(rec, golden, "in memory", &cached, dir);
   EXPECT_FALSE(cached);
-  ASSERT_TRUE(std::filesystem::exists(dir / "key.txt"));
+  ASSERT_TRUE(std::filesystem::exists(dir / "whole.bin"));
   for (const auto& e : std::filesystem::directory_iterator(dir))
     EXPECT_EQ(e.path().string().find(".tmp"), std::string::npos) << e.path();
   const auto b = PartTemplate::load_or_build(rec, golden, "in memory", &cached, dir);
   EXPECT_TRUE(cached);
-  EXPECT_EQ(b.regions().size(), rec.regions.size());
+  ASSERT_EQ(b.regions().size(), a.regions().size());
+  EXPECT_EQ(b.whole().fine().points, a.whole().fine().points);
+  EXPECT_EQ(b.regions()[0].cloud.coarse().points, a.regions()[0].cloud.coarse().points);
   // Without the directory nothing is cached: the recipe has no source and its cache is off.
   (void)PartTemplate::load_or_build(rec, golden, "in memory", &cached);
   EXPECT_FALSE(cached);
+  // One region file of another golden (two processes filling the directory at once) makes
+  // the whole cache stale: it is rebuilt, not mixed.
+  const auto other = dir / "other";
+  (void)PartTemplate::load_or_build(rec, golden, "another golden", &cached, other);
+  std::filesystem::copy_file(other / "region-0.bin", dir / "region-0.bin", std::filesystem::copy_options::overwrite_existing);
+  (void)PartTemplate::load_or_build(rec, golden, "in memory", &cached, dir);
+  EXPECT_FALSE(cached);
+  std::filesystem::remove_all(dir);
+}
+
+TEST(TemplateCache, ARecipeWithItsCacheOffWritesNothingNextToIt) {
+  auto rec = recipe();
+  const auto dir = std::filesystem::temp_directory_path() / ("fettle-tcache-off-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  rec.source = dir / "block.toml";
+  rec.vision.cache = false;
+  bool cached = true;
+  (void)PartTemplate::load_or_build(rec, casting(0.5, false, nullptr), "golden v1", &cached);
+  EXPECT_FALSE(cached);
+  EXPECT_TRUE(std::filesystem::is_empty(dir));
   std::filesystem::remove_all(dir);
 }
 

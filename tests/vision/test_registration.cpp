@@ -143,8 +143,10 @@ TEST(PreparedCloud, CacheRoundTripGivesTheSameRegistration) {
   ps.feature_radius = 20.0;
   const auto prepared = PreparedCloud::prepare(milk, ps);
   const auto file = std::filesystem::temp_directory_path() / ("fettle-prep-" + std::to_string(::getpid()) + ".bin");
-  prepared.save(file);
-  const auto loaded = PreparedCloud::load(file);
+  prepared.save(file, "milk v1");
+  EXPECT_FALSE(PreparedCloud::load(file).has_value());            // no key: not this cache
+  EXPECT_FALSE(PreparedCloud::load(file, "milk v2").has_value());  // another key: stale
+  const auto loaded = PreparedCloud::load(file, "milk v1");
   ASSERT_TRUE(loaded.has_value());
   EXPECT_EQ(loaded->fine().size(), prepared.fine().size());
   EXPECT_EQ(loaded->coarse().size(), prepared.coarse().size());

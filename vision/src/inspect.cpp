@@ -7,8 +7,6 @@
 #include <limits>
 #include <sstream>
 
-#include <unistd.h>
-
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/vision/plane.hpp"
@@ -44,6 +42,8 @@ Eigen::Vector3d box_max(const config::Region& r, double margin) {
          Eigen::Vector3d::Constant(margin);
 }
 
+/// What a cached template was built from. It names the inputs, not the code: bump the version
+/// when build() or PreparedCloud::prepare() computes something else from the same inputs.
 std::string cache_key(const config::PartRecipe& recipe, const std::string& golden_identity, std::size_t golden_points) {
   std::ostringstream k;
   k << "fettle-vision-cache 3\n" << golden_identity << "\n" << golden_points << "\n";
@@ -88,44 +88,37 @@ PartTemplate PartTemplate::load_or_build(const config::PartRecipe& recipe, const
   if (dir.empty() && recipe.vision.cache && !recipe.source.empty())
     dir = recipe.source.parent_path() / ("." + recipe.source.stem().string() + ".vision-cache");
   if (dir.empty()) return build(recipe, golden_part);
+  // Every file carries the whole key and is read only with it: files that two processes with
+  // different goldens wrote into one directory at once are never taken for one template.
   const std::string key = cache_key(recipe, golden_identity, golden_part.size());
-  std::error_code ec;
   {
-    std::ifstream in(dir / "key.txt");
-    std::string stored((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-    if (stored == key) {
-      PartTemplate t;
-      auto whole = PreparedCloud::load(dir / "whole.bin");
-      bool ok = whole.has_value();
-      if (ok) t.whole_ = *whole;
-      for (std::size_t i = 0; ok && i < recipe.regions.size(); ++i) {
-        auto r = PreparedCloud::load(dir / ("region-" + std::to_string(i) + ".bin"));
-        ok = r.has_value();
-        if (ok) t.regions_.push_back(RegionTemplate{recipe.regions[i], *r});
-      }
-      if (ok) {
-        if (from_cache != nullptr) *from_cache = true;
-        return t;
-      }
+    PartTemplate t;
+    auto whole = PreparedCloud::load(dir / "whole.bin", key);
+    bool ok = whole.has_value();
+    if (ok) t.whole_ = *whole;
+    for (std::size_t i = 0; ok && i < recipe.regions.size(); ++i) {
+      auto r = PreparedCloud::load(dir / ("region-" + std::to_string(i) + ".bin"), key);
+      ok = r.has_value();
+      if (ok) t.regions_.push_back(RegionTemplate{recipe.regions[i], *r});
+    }
+    if (ok) {
+      if (from_cache != nullptr) *from_cache = true;
+      return t;
     }
   }
   PartTemplate t = build(recipe, golden_part);
+  std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) {
     log::get("vision")->warn("cannot create template cache {}: {}", dir.string(), ec.message());
     return t;
   }
   try {
-    // no key while the files change: a reader of the old key must not load the new files
-    std::filesystem::remove(dir / "key.txt", ec);
-    t.whole_.save(dir / "whole.bin");
-    for (std::size_t i = 0; i < t.regions_.size(); ++i) t.regions_[i].cloud.save(dir / ("region-" + std::to_string(i) + ".bin"));
-    // the key last and by rename: a reader that sees it sees every file it names
-    const auto key_tmp = dir / ("key.txt.tmp-" + std::to_string(::getpid()));
-    std::ofstream(key_tmp) << key;
-    std::filesystem::rename(key_tmp, dir / "key.txt", ec);
-    if (ec) log::get("vision")->warn("template cache not written: {}: {}", (dir / "key.txt").string(), ec.message());
-  } catch (const std::exception& e) {  // UserError, or a std::filesystem::filesystem_error from a rename
+    t.whole_.save(dir / "whole.bin", key);
+    for (std::size_t i = 0; i < t.regions_.size(); ++i)
+      t.regions_[i].cloud.save(dir / ("region-" + std::to_string(i) + ".bin"), key);
+    std::ofstream(dir / "key.txt") << key;  // for people: what the files were built from
+  } catch (const UserError& e) {
     log::get("vision")->warn("template cache not written: {}", e.what());
   }
   return t;

@@ -12,6 +12,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <string_view>
 
 #include <unistd.h>
 
@@ -118,7 +119,7 @@ PreparedCloud PreparedCloud::prepare(const Cloud& fine, const PrepareSettings& s
 
 namespace {
 
-constexpr std::array<char, 8> kMagic{'F', 'V', 'P', 'R', 'E', 'P', '0', '2'};
+constexpr std::array<char, 8> kMagic{'F', 'V', 'P', 'R', 'E', 'P', '0', '3'};  // 03: the key after it
 
 template <class T>
 void put(std::ofstream& out, const T& v) {
@@ -141,13 +142,16 @@ bool get_points(std::ifstream& in, std::vector<Eigen::Vector3f>& v) {
 
 }  // namespace
 
-void PreparedCloud::save(const std::filesystem::path& file) const {
+void PreparedCloud::save(const std::filesystem::path& file, std::string_view key) const {
   // a name of this process's own: two processes filling the same cache never share a file
-  const auto tmp = file.string() + ".tmp-" + std::to_string(::getpid());
+  const std::filesystem::path tmp = file.string() + ".tmp-" + std::to_string(::getpid());
+  std::error_code ec;
   {
     std::ofstream out(tmp, std::ios::binary);
     if (!out) throw UserError(file.string() + ": cannot write the template cache");
     out.write(kMagic.data(), kMagic.size());
+    put(out, static_cast<std::uint64_t>(key.size()));
+    out.write(key.data(), static_cast<std::streamsize>(key.size()));
     put(out, impl_->settings);
     put_points(out, impl_->fine.points);
     put_points(out, impl_->fine.normals);
@@ -156,16 +160,29 @@ void PreparedCloud::save(const std::filesystem::path& file) const {
     put(out, static_cast<std::uint64_t>(impl_->features->size()));
     out.write(reinterpret_cast<const char*>(impl_->features->data()),
               static_cast<std::streamsize>(impl_->features->size() * sizeof(Feature)));
-    if (!out) throw UserError(file.string() + ": writing the template cache failed");
+    if (!out) {
+      out.close();
+      std::filesystem::remove(tmp, ec);
+      throw UserError(file.string() + ": writing the template cache failed");
+    }
   }
-  std::filesystem::rename(tmp, file);
+  std::filesystem::rename(tmp, file, ec);
+  if (ec) {
+    const std::string why = ec.message();
+    std::filesystem::remove(tmp, ec);
+    throw UserError(file.string() + ": cannot replace the template cache: " + why);
+  }
 }
 
-std::optional<PreparedCloud> PreparedCloud::load(const std::filesystem::path& file) {
+std::optional<PreparedCloud> PreparedCloud::load(const std::filesystem::path& file, std::string_view key) {
   std::ifstream in(file, std::ios::binary);
   if (!in) return std::nullopt;
   std::array<char, 8> magic{};
   if (!in.read(magic.data(), magic.size()) || magic != kMagic) return std::nullopt;
+  std::uint64_t key_size = 0;
+  if (!get(in, key_size) || key_size != key.size()) return std::nullopt;
+  std::string stored(key.size(), '\0');
+  if (!in.read(stored.data(), static_cast<std::streamsize>(stored.size())) || stored != key) return std::nullopt;
   auto impl = std::make_shared<Impl>();
   std::uint64_t nf = 0;
   if (!get(in, impl->settings) || !get_points(in, impl->fine.points) || !get_points(in, impl->fine.normals) ||

@@ -2,8 +2,8 @@
 // The processing pipeline shared by fettled, `fettle plan` and `fettle-sim trial`:
 //
 //   load_recipe()  once per recipe (setup, throws UserError): recipe + golden template +
-//                  vision::PartTemplate (cached on disk next to the recipe) + the template's
-//                  signed distance for planning.
+//                  vision::PartTemplate + the template's signed distance for planning (both
+//                  cached on disk: next to the recipe, or where LoadOptions says).
 //   process()      per cycle (values, never throws on bad scans): views (camera frame) ->
 //                  base frame -> fused scan -> vision::inspect (locate, extract) ->
 //                  planning::plan_part (plan, order, validate) -> one Trajectory.

@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <memory>
 #include <optional>
+#include <string_view>
 
 #include "fettle/core/geometry.hpp"
 #include "fettle/core/result.hpp"
@@ -45,9 +46,11 @@ class PreparedCloud {
   [[nodiscard]] double fine_spacing() const;
 
   /// Binary cache of clouds, normals and features (search trees are rebuilt on load, which
-  /// takes milliseconds). load() returns nullopt when the file is missing or stale.
-  void save(const std::filesystem::path& file) const;
-  static std::optional<PreparedCloud> load(const std::filesystem::path& file);
+  /// takes milliseconds). The file carries `key` (what it was built from); load() returns
+  /// nullopt when the file is missing, damaged or holds another key. save() writes a
+  /// temporary file of this process and renames it into place.
+  void save(const std::filesystem::path& file, std::string_view key = {}) const;
+  static std::optional<PreparedCloud> load(const std::filesystem::path& file, std::string_view key = {});
 
   struct Impl;
   [[nodiscard]] const Impl& impl() const { return *impl_; }
