@@ -42,8 +42,9 @@ test-unit: build
 ASAN_FLAGS = -O1 -gline-tables-only -DNDEBUG
 # The recipe caches the plain build's slow tests left in $(BUILD_DIR)/test-cache (the planner's
 # grid: 45 s to build with gcc -O2, 13 min under ASan; the pipeline test's vision template) seed
-# a sanitizer build's own, file by file where it has none. Each is keyed by its inputs, so a
-# stale one is rebuilt; the code that builds them is tested under the sanitizers on its own.
+# a sanitizer build's: each test's store whole, where the sanitizer build has none. Each cache
+# is keyed by its inputs, so a stale one is rebuilt; the code that builds them is tested under
+# the sanitizers on its own.
 SEED_TEST_CACHE = scripts/seed-test-cache $(BUILD_DIR)
 test-asan: deps
 	CC=clang CXX=clang++ cmake -S . -B $(ASAN_BUILD_DIR) -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
