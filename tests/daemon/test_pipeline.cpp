@@ -4,7 +4,6 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
-#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -14,6 +13,7 @@
 #include "fettle/config/load.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/daemon/pipeline.hpp"
+#include "fettle/planning/sdf_grid.hpp"
 #include "fettle/sim/sim.hpp"
 
 namespace fettle::daemon {
@@ -38,14 +38,6 @@ std::vector<View> views_of(const std::vector<sim::Capture>& captures) {
   return v;
 }
 
-/// FNV-1a over the bytes of a point list: names the simulator's golden in the cache key.
-std::uint64_t fnv1a(const std::vector<Eigen::Vector3f>& v) {
-  std::uint64_t h = 14695981039346656037ULL;
-  const auto* bytes = reinterpret_cast<const unsigned char*>(v.data());
-  for (std::size_t i = 0; i < v.size() * sizeof(Eigen::Vector3f); ++i) h = (h ^ bytes[i]) * 1099511628211ULL;
-  return h;
-}
-
 class Pipeline : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
@@ -53,9 +45,12 @@ class Pipeline : public ::testing::Test {
     recipe.vision.cache = false;  // never write next to the source tree
     LoadOptions lo;
     vision::Cloud golden;
+    std::vector<Vec3> positions, normals;  // the same samples, for the cache key
     for (const auto& s : sim::Casting::golden(recipe, 0).sample_golden_surface(0.5)) {
       golden.points.push_back(s.position_mm);
       golden.normals.push_back(s.normal);
+      positions.push_back(s.position_mm.cast<double>());
+      normals.push_back(s.normal.cast<double>());
     }
     lo.golden = golden;
     // The planner's signed-distance grid (~45 s to build, 13 min under ASan) and the vision
@@ -63,8 +58,7 @@ class Pipeline : public ::testing::Test {
     // between runs. The grid's key hashes the golden samples and the settings; the template's
     // names the golden by this identity, so it hashes the samples too: a stale one is rebuilt.
     // The keys name inputs, not code: a change to how either is built bumps its version.
-    lo.golden_identity = "sim golden points " + std::to_string(fnv1a(golden.points)) + " normals " +
-                         std::to_string(fnv1a(golden.normals));
+    lo.golden_identity = "sim golden " + std::to_string(planning::sdf_grid_key(positions, normals, "samples"));
     const fs::path store = fs::path(FETTLE_BIN_DIR).parent_path() / "test-cache" / "pipeline";
     lo.sdf_cache_dir = store;
     lo.template_cache_dir = store / "vision";
