@@ -3,6 +3,7 @@
 // golden body deeper than the threshold are gouges.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "casting_model.hpp"
 #include "fettle/core/error.hpp"
@@ -78,6 +79,54 @@ bool line_interval(const ToolSolid& tool, const Vec3& c, const Vec3& a, double x
   }
   lo = zlo, hi = zhi;
   return true;
+}
+
+/// Conservative test that the point q may lie inside the tool (tip or ball centre c, axis a):
+/// the cylinder of radius r and length L contains the cone, and a margin of 1e-6 mm keeps
+/// rounding from rejecting a point that line_interval would place on the boundary. Cheap
+/// (no square root), so it filters the cells before line_interval is asked for the exact span.
+bool maybe_inside(const ToolSolid& tool, const Vec3& c, const Vec3& a, const Vec3& q) {
+  constexpr double eps = 1e-6;
+  const Vec3 d = q - c;
+  const double r = tool.radius + eps;
+  if (tool.shape == config::ToolShape::ball) return d.squaredNorm() <= r * r;
+  const double s = a.dot(d);
+  if (s < -eps || s > tool.length + eps) return false;
+  return d.squaredNorm() - s * s <= r * r;
+}
+
+/// Max heights over square tiles of a grid, so a tool pose can skip every tile it stays above.
+/// Grinding only lowers heights: bounds computed before a trajectory stay upper bounds.
+struct TileMax {
+  static constexpr int kTile = 16;
+  int tx = 0, ty = 0;
+  std::vector<float> max;
+  template <class Height>
+  TileMax(int nx, int ny, Height height)
+      : tx((nx + kTile - 1) / kTile), ty((ny + kTile - 1) / kTile),
+        max(static_cast<std::size_t>(tx) * static_cast<std::size_t>(ty), -std::numeric_limits<float>::infinity()) {
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) {
+        float& m = max[static_cast<std::size_t>(j / kTile) * static_cast<std::size_t>(tx) + static_cast<std::size_t>(i / kTile)];
+        m = std::max(m, height(i, j));
+      }
+  }
+  [[nodiscard]] float at(int i, int j) const { return max[static_cast<std::size_t>(j) * static_cast<std::size_t>(tx) + static_cast<std::size_t>(i)]; }
+};
+
+/// Calls f(i, j) for the cells of [i0, i1] x [j0, j1] whose tile may reach up to zlo (all of
+/// them if `all`).
+template <class F>
+void for_cells_above(const TileMax& tiles, int i0, int i1, int j0, int j1, double zlo, bool all, F&& f) {
+  constexpr int T = TileMax::kTile;
+  for (int tj = j0 / T; tj <= j1 / T; ++tj)
+    for (int ti = i0 / T; ti <= i1 / T; ++ti) {
+      if (!all && tiles.at(ti, tj) < zlo) continue;
+      const int jb = std::max(j0, tj * T), je = std::min(j1, tj * T + T - 1);
+      const int ib = std::max(i0, ti * T), ie = std::min(i1, ti * T + T - 1);
+      for (int j = jb; j <= je; ++j)
+        for (int i = ib; i <= ie; ++i) f(i, j);
+    }
 }
 
 /// Points on the tool's surface (for the gouge depth), tool frame: (radius, axial) samples.
@@ -175,6 +224,16 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
   }
   res.poses = poses.size();
 
+  // Tile bounds: a pose only visits the tiles whose highest body or material point it can reach.
+  const TileMax body_tiles(m.body.nx, m.body.ny, [&](int i, int j) { return m.body.at(i, j); });
+  std::vector<TileMax> material_tiles;
+  material_tiles.reserve(m.materials.size());
+  for (const auto& mat : m.materials)
+    material_tiles.emplace_back(mat.nx, mat.ny, [&](int i, int j) {
+      const auto k = mat.index(i, j);
+      return mat.z1[k] > mat.z0[k] ? mat.z1[k] : -std::numeric_limits<float>::infinity();
+    });
+
   Rng rng(opt.noise_seed, 0x6121D);
   const Transform T_part_base = m.T_base_part.inverse();
   int bi0 = m.body.nx, bj0 = m.body.ny, bi1 = -1, bj1 = -1;  // dirty body cells
@@ -214,52 +273,63 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
     }
 
     if (p.cut) {
-      // Tool AABB in the part frame.
-      const Vec3 tip2 = c + a * (tool.shape == config::ToolShape::ball ? 0.0 : tool.length);
-      const double xlo = std::min(c.x(), tip2.x()) - tool.radius, xhi = std::max(c.x(), tip2.x()) + tool.radius;
-      const double ylo = std::min(c.y(), tip2.y()) - tool.radius, yhi = std::max(c.y(), tip2.y()) + tool.radius;
-      const double zlo = std::min(c.z(), tip2.z()) - tool.radius;
-      for (auto& mat : m.materials) {
+      // Tool AABB in the part frame: the cylinder (which holds the cone) is the hull of its two
+      // end discs, and a disc of radius r with unit normal a reaches r * sqrt(1 - a_k^2) along
+      // axis k; zlo is the tool's lowest point.
+      const bool ball = tool.shape == config::ToolShape::ball;
+      const Vec3 tip2 = c + a * (ball ? 0.0 : tool.length);
+      auto reach_along = [&](double ak) { return ball ? tool.radius : tool.radius * std::sqrt(std::max(0.0, 1.0 - ak * ak)); };
+      const double rx = opt.exhaustive ? tool.radius : reach_along(a.x());
+      const double ry = opt.exhaustive ? tool.radius : reach_along(a.y());
+      const double rz = reach_along(a.z());
+      const double xlo = std::min(c.x(), tip2.x()) - rx, xhi = std::max(c.x(), tip2.x()) + rx;
+      const double ylo = std::min(c.y(), tip2.y()) - ry, yhi = std::max(c.y(), tip2.y()) + ry;
+      // (the reference mode keeps the looser bounds: the tool's bounding box from its radius)
+      const double zlo = opt.exhaustive ? std::min(c.z(), tip2.z()) - tool.radius : std::min(c.z(), tip2.z()) - rz - 1e-6;
+      for (std::size_t mi = 0; mi < m.materials.size(); ++mi) {
+        auto& mat = m.materials[mi];
         const int i0 = std::max(0, static_cast<int>(std::floor((xlo - mat.x0) / mat.pitch)));
         const int i1 = std::min(mat.nx - 1, static_cast<int>(std::floor((xhi - mat.x0) / mat.pitch)));
         const int j0 = std::max(0, static_cast<int>(std::floor((ylo - mat.y0) / mat.pitch)));
         const int j1 = std::min(mat.ny - 1, static_cast<int>(std::floor((yhi - mat.y0) / mat.pitch)));
-        for (int j = j0; j <= j1; ++j)
-          for (int i = i0; i <= i1; ++i) {
-            const auto k = mat.index(i, j);
-            float& z0 = mat.z0[k];
-            float& z1 = mat.z1[k];
-            if (z1 <= z0 || z1 < zlo) continue;
-            double lo = 0, hi = 0;
-            if (!line_interval(tool, c, a, mat.cx(i), mat.cy(j), lo, hi)) continue;
-            if (hi <= z0 || lo >= z1) continue;
-            if (lo <= z0 && hi >= z1) {
-              z1 = z0;
-            } else if (lo <= z0) {
-              z0 = static_cast<float>(hi);
-            } else {
-              // cut from the top, or through the middle: the sliver above breaks off with it
-              z1 = static_cast<float>(lo);
-            }
+        if (i0 > i1 || j0 > j1) continue;
+        for_cells_above(material_tiles[mi], i0, i1, j0, j1, zlo, opt.exhaustive, [&](int i, int j) {
+          const auto k = mat.index(i, j);
+          float& z0 = mat.z0[k];
+          float& z1 = mat.z1[k];
+          if (z1 <= z0 || z1 < zlo) return;
+          double lo = 0, hi = 0;
+          if (!line_interval(tool, c, a, mat.cx(i), mat.cy(j), lo, hi)) return;
+          if (hi <= z0 || lo >= z1) return;
+          if (lo <= z0 && hi >= z1) {
+            z1 = z0;
+          } else if (lo <= z0) {
+            z0 = static_cast<float>(hi);
+          } else {
+            // cut from the top, or through the middle: the sliver above breaks off with it
+            z1 = static_cast<float>(lo);
           }
+        });
       }
-      // The body is cut from the top (what a scanner above would see).
+      // The body is cut from the top (what a scanner above would see): only where the surface
+      // point (x, y, h) lies in the tool, i.e. lo < h <= hi.
       auto& B = m.body;
       const int i0 = std::max(0, static_cast<int>(std::floor((xlo - B.x0) / B.pitch)));
       const int i1 = std::min(B.nx - 1, static_cast<int>(std::floor((xhi - B.x0) / B.pitch)));
       const int j0 = std::max(0, static_cast<int>(std::floor((ylo - B.y0) / B.pitch)));
       const int j1 = std::min(B.ny - 1, static_cast<int>(std::floor((yhi - B.y0) / B.pitch)));
-      for (int j = j0; j <= j1; ++j)
-        for (int i = i0; i <= i1; ++i) {
+      if (i0 <= i1 && j0 <= j1)
+        for_cells_above(body_tiles, i0, i1, j0, j1, zlo, opt.exhaustive, [&](int i, int j) {
           float& h = B.at(i, j);
-          if (h <= kNoPart || h < zlo) continue;
+          if (h <= kNoPart || h < zlo) return;
+          if (!opt.exhaustive && !maybe_inside(tool, c, a, Vec3(B.cx(i), B.cy(j), h))) return;
           double lo = 0, hi = 0;
-          if (!line_interval(tool, c, a, B.cx(i), B.cy(j), lo, hi)) continue;
+          if (!line_interval(tool, c, a, B.cx(i), B.cy(j), lo, hi)) return;
           if (lo < h && hi >= h) {
             h = static_cast<float>(std::max(0.0, lo));
             bi0 = std::min(bi0, i), bj0 = std::min(bj0, j), bi1 = std::max(bi1, i), bj1 = std::max(bj1, j);
           }
-        }
+        });
       // material changes the surface too
       bi0 = std::min(bi0, i0), bj0 = std::min(bj0, j0), bi1 = std::max(bi1, i1), bj1 = std::max(bj1, j1);
     }

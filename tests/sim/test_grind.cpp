@@ -113,6 +113,73 @@ TEST(SimGrind, PathNoiseIsSeededAndDeterministic) {
   EXPECT_NE(a.max_gouge_depth_mm(), d.max_gouge_depth_mm());
 }
 
+// The grinder visits only the cells a pose can reach (tile bounds, the tool's exact lowest point
+// and footprint, a cheap inside test before the exact one). A wrong bound would leave material or
+// body standing inside the swept volume: tilted cylinders and a tilted cone swept across the riser
+// and the face around it must leave exactly what the reference mode (every cell of every pose's
+// bounding box tested) leaves.
+TEST(SimGrind, TiltedToolsCutTheSameAsTheExhaustiveReference) {
+  using fettle::Vec3;
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.risers.at(0);
+  struct Case {
+    fettle::config::ToolShape shape;
+    double diameter_mm, length_mm, cone_deg;
+    Vec3 axis;
+    double tip_above_face_mm;
+  };
+  const Case cases[] = {
+      {fettle::config::ToolShape::cylinder, 40, 6, 0, Vec3(1, 0, 1), 15.0},     // chamfer disc at 45 deg: riser only
+      {fettle::config::ToolShape::cylinder, 16, 10, 0, Vec3(0, 1, 2), 3.0},     // cup wheel tilted across the path: face too
+      {fettle::config::ToolShape::cone, 16, 12, 30, Vec3(0.3, -0.4, 1), -0.3},  // cone tilted both ways: face too
+      {fettle::config::ToolShape::ball, 12, 0, 0, Vec3(0, 0, 1), -0.4},         // ball: face and riser
+  };
+  for (const auto& k : cases) {
+    SCOPED_TRACE(::testing::Message() << "axis " << k.axis.transpose() << ", tip " << k.tip_above_face_mm << " mm above the face");
+    const Casting original = Casting::make(recipe, 1, CastingOptions{.vary = false});
+    const double face = original.golden_top_z_mm(f.center_mm[0] + 0.5 * f.diameter_mm.max + 8, f.center_mm[1]);
+    GrindOptions o;
+    o.tool.shape = k.shape;
+    o.tool.diameter_mm = k.diameter_mm;
+    o.tool.length_mm = k.length_mm;
+    o.tool.cone_angle_deg = k.cone_deg;
+    o.path_noise_mm = 0.0;
+    o.interpolation_mm = 0.25;  // fewer poses: the reference mode is slow
+    const Vec3 a = k.axis.normalized();
+    const double x0 = f.center_mm[0] - 30, x1 = f.center_mm[0] + 30, y = f.center_mm[1];
+    const fettle::Quat q_base_tool(original.T_base_part().linear() * fettle::Quat::FromTwoVectors(Vec3::UnitZ(), a).toRotationMatrix());
+    fettle::Trajectory t;
+    for (double x : {x0, x1}) {
+      fettle::TrajectoryPoint p;
+      p.T_base_tool.position_mm = original.T_base_part() * Vec3(x, y, face + k.tip_above_face_mm);
+      p.T_base_tool.orientation = q_base_tool;
+      p.speed_mm_s = 20;
+      p.spindle_rpm = 9000;
+      t.points.push_back(p);
+    }
+    Casting fast = original, reference = original;
+    auto res = grind(fast, t, o);
+    o.exhaustive = true;
+    auto ref = grind(reference, t, o);
+    ASSERT_TRUE(res.ok()) << res.error().message;
+    ASSERT_TRUE(ref.ok()) << ref.error().message;
+    EXPECT_GT(ref->removed_mm3(), 5.0) << "the case must cut something";
+    EXPECT_EQ(res->removed_mm3(), ref->removed_mm3());
+    ASSERT_EQ(res->gouges.size(), ref->gouges.size());
+    for (std::size_t i = 0; i < ref->gouges.size(); ++i) EXPECT_EQ(res->gouges[i].depth_mm, ref->gouges[i].depth_mm);
+    int lowered = 0, differ = 0;
+    for (double sy = y - 30; sy <= y + 30; sy += 0.1)  // body cells are 0.1 mm, material 0.05 mm
+      for (double sx = x0 - 30; sx <= x1 + 30; sx += 0.1) {
+        const double zf = fast.surface_z_mm(sx, sy), zr = reference.surface_z_mm(sx, sy);
+        if (zr < original.surface_z_mm(sx, sy) - 0.05) ++lowered;
+        if (!(zf == zr || (std::isnan(zf) && std::isnan(zr))) && differ++ < 5)
+          ADD_FAILURE() << "at x " << sx << ", y " << sy << ": " << zf << " mm, the reference " << zr << " mm";
+      }
+    EXPECT_EQ(differ, 0);
+    EXPECT_GT(lowered, 1000);
+  }
+}
+
 TEST(SimGrind, TrajectoriesWithNaNOrOutsideTheCellAreRejectedAndNotExecuted) {
   const auto recipe = sim_test::pump_body();
   Casting c = Casting::make(recipe, 1);

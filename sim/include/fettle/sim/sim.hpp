@@ -283,6 +283,9 @@ struct GrindOptions {
   double gouge_threshold_mm = 0.02;      ///< cuts into the golden body deeper than this are gouges
   std::uint64_t noise_seed = 1;
   bool only_when_spindle_on = true;      ///< spindle off = no cutting (collisions still recorded as gouges)
+  /// Reference mode for tests: every cell of each pose's bounding box gets the exact test, none
+  /// is skipped by the tile bounds or the cheap inside test. Same result, 5-20x slower.
+  bool exhaustive = false;
 };
 
 struct GrindResult {
