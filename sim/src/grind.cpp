@@ -107,11 +107,12 @@ struct TileMax {
         max(static_cast<std::size_t>(tx) * static_cast<std::size_t>(ty), -std::numeric_limits<float>::infinity()) {
     for (int j = 0; j < ny; ++j)
       for (int i = 0; i < nx; ++i) {
-        float& m = max[static_cast<std::size_t>(j / kTile) * static_cast<std::size_t>(tx) + static_cast<std::size_t>(i / kTile)];
+        float& m = max[index(i / kTile, j / kTile)];
         m = std::max(m, height(i, j));
       }
   }
-  [[nodiscard]] float at(int i, int j) const { return max[static_cast<std::size_t>(j) * static_cast<std::size_t>(tx) + static_cast<std::size_t>(i)]; }
+  [[nodiscard]] std::size_t index(int ti, int tj) const { return static_cast<std::size_t>(tj) * static_cast<std::size_t>(tx) + static_cast<std::size_t>(ti); }
+  [[nodiscard]] float at(int ti, int tj) const { return max[index(ti, tj)]; }
 };
 
 /// Calls f(i, j) for the cells of [i0, i1] x [j0, j1] whose tile may reach up to zlo (all of
