@@ -46,6 +46,11 @@ if(FETTLE_SANITIZE)
   # coroutines ("Cannot represent a difference across sections"): that one check is off.
   if(CMAKE_CXX_COMPILER_ID STREQUAL "Clang" AND FETTLE_SANITIZE MATCHES "undefined")
     target_compile_options(fettle_options INTERFACE -fno-sanitize=function)
+    # UBSan's checks are left out of Eigen's, PCL's and FLANN's headers (third-party code, as
+    # their compiled libraries are): in Eigen they stop inlining and made tests 100x slower.
+    # ASan still instruments that code. The list and the measurements: tests/sanitizers/ubsan-ignore.txt
+    target_compile_options(fettle_options INTERFACE
+                           -fsanitize-ignorelist=${PROJECT_SOURCE_DIR}/tests/sanitizers/ubsan-ignore.txt)
   endif()
   # Code that must know it runs under ThreadSanitizer (vision/src/registration.cpp: PCL's
   # OpenMP estimators on one thread) tests FETTLE_TSAN.
