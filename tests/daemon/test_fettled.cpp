@@ -190,7 +190,10 @@ class Fettled : public ::testing::Test {
     o.plc_port = o.robot_port = o.spindle_port = 0;
     o.castings = 0;
     o.auto_start = false;
-    o.robot_speedup = 4.0;
+    // The simulator's default, as in the demo (a run takes 15-30 s there; it was 4 until
+    // 2026-12-02, which made A 2.5 times longer); the mid-run scenarios act within a second of
+    // the spindle starting.
+    o.robot_speedup = 10.0;
     cell_ = new fettle::sim::CellSim(o);
     cell_->on_event([](const std::string& line) { std::cerr << "[cell] " << line << "\n"; });
     cell_->start();
@@ -335,7 +338,7 @@ class Fettled : public ::testing::Test {
     cell_->load(seed);
     const auto before = cell_->plc().results.size();
     cell_->request();
-    // processing ~15 s, the run ~70 s (the simulator grinds the casting before the robot's
+    // processing ~15 s, the run ~30 s (the simulator grinds the casting before the robot's
     // DONE), verification, possibly one re-grind: a few minutes on the 2-core machine
     return wait_until([&] { return cell_->plc().results.size() > before; }, 360s);
   }
@@ -363,7 +366,7 @@ pid_t Fettled::pid_ = 0;
 std::optional<int> Fettled::reaped_;
 
 // Each TEST below runs in its own process under ctest (gtest_discover_tests), with its own
-// fettled and simulated cell. A: the three cycles (~330-390 s on the 2-core machine).
+// fettled and simulated cell. A: the three cycles (~105 s on the 2-core machine, ~320 s under ASan; 265 s and 400 s at the robot speed-up 4 before 2026-12-02).
 // B: one scenario per fault, in one process so the journal can be checked across them all.
 TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
   ASSERT_TRUE(reaches(State::stopped, 300s));
