@@ -10,7 +10,7 @@ FUZZ_BUILD_DIR ?= build-fuzz
 FUZZ_SECONDS ?= 300
 SOAK_CYCLES ?= 500
 SOAK_FAULT_RATE ?= 0.3
-# ctest arguments for test-asan, e.g. ASAN_CTEST_ARGS="-LE slow" in CI.
+# ctest arguments for test-asan, e.g. ASAN_CTEST_ARGS="-LE slow" (CI runs every test).
 ASAN_CTEST_ARGS ?=
 
 .PHONY: all deps configure build test test-unit test-asan test-tsan fuzz soak demo bench accuracy accuracy-vision clean
