@@ -41,7 +41,7 @@ test-unit: build
 # four times as long for vision's PCL-heavy files), and stack traces still name file and line.
 ASAN_FLAGS = -O1 -gline-tables-only -DNDEBUG
 # The recipe caches the plain build's slow tests left in $(BUILD_DIR)/test-cache (the planner's
-# grid: 45 s to build with gcc -O2, 13 min under ASan; the pipeline test's vision template) seed
+# grid: 45 s to build with gcc -O2, about 2 min under ASan; the pipeline test's vision template) seed
 # a sanitizer build's: each test's store whole, where the sanitizer build has none. Each cache
 # is keyed by its inputs, so a stale one is rebuilt; the code that builds them is tested under
 # the sanitizers on its own.

@@ -53,7 +53,7 @@ class Pipeline : public ::testing::Test {
       normals.push_back(s.normal.cast<double>());
     }
     lo.golden = golden;
-    // The planner's signed-distance grid (~45 s to build, 13 min under ASan) and the vision
+    // The planner's signed-distance grid (~45 s to build, ~2 min under ASan) and the vision
     // template (1-2 min under ASan) are kept in the build tree between the test processes and
     // between runs. The grid's key hashes the golden samples and the settings; the template's
     // names the golden by this identity, so it hashes the samples too: a stale one is rebuilt.
