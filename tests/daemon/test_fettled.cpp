@@ -366,7 +366,8 @@ pid_t Fettled::pid_ = 0;
 std::optional<int> Fettled::reaped_;
 
 // Each TEST below runs in its own process under ctest (gtest_discover_tests), with its own
-// fettled and simulated cell. A: the three cycles (~105 s on the 2-core machine, ~320 s under ASan; 265 s and 400 s at the robot speed-up 4 before 2026-12-02).
+// fettled and simulated cell. A: the three cycles (~105 s on the 2-core machine, ~320 s
+// under ASan; 265 s and 400 s with the robot's speed-up at 4 until 2026-12-02).
 // B: one scenario per fault, in one process so the journal can be checked across them all.
 TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
   ASSERT_TRUE(reaches(State::stopped, 300s));
