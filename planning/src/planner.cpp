@@ -657,38 +657,66 @@ Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& p
   return traj;
 }
 
+namespace {
+
+/// The region a trajectory point belongs to (through its segment), "?" if none.
+std::string region_of(const Trajectory& trajectory, const TrajectoryPoint& p) {
+  return p.segment >= 0 && static_cast<std::size_t>(p.segment) < trajectory.segment_regions.size()
+             ? trajectory.segment_regions[static_cast<std::size_t>(p.segment)]
+             : std::string("?");
+}
+
+Error rule_error(const std::string& region, std::size_t i, const std::string& rule, const std::string& what) {
+  return Error{"planning." + rule, "region '" + region + "', point " + std::to_string(i) + ", rule " + rule + ": " + what};
+}
+
+/// The rules that need no template at point i: finite pose, workspace box, tool-axis cone,
+/// speed and spindle speed. Comparisons are written so that NaN fails them.
+std::optional<Error> check_limits(const Trajectory& trajectory, std::size_t i, const PlannerSettings& settings) {
+  const auto& p = trajectory.points[i];
+  auto fail = [&](const std::string& rule, const std::string& what) {
+    return rule_error(region_of(trajectory, p), i, rule, what);
+  };
+  const Vec3& x = p.T_base_tool.position_mm;
+  const Quat& q = p.T_base_tool.orientation;
+  if (!x.allFinite() || !q.coeffs().allFinite() || std::abs(q.norm() - 1.0) > 1e-6)
+    return fail("finite", "the pose is not finite or its quaternion is not unit length (a planner bug)");
+  if ((x.array() < settings.workspace_min_mm.array()).any() || (x.array() > settings.workspace_max_mm.array()).any())
+    return fail("workspace", "position " + fmt(x) + " mm (base) is outside the workspace box " +
+                                 fmt(settings.workspace_min_mm) + " .. " + fmt(settings.workspace_max_mm) +
+                                 "; check the part placement, T_base_camera and [safety] workspace_*_mm");
+  const Vec3 axis = q.toRotationMatrix().col(2);
+  if (axis.z() < std::cos(settings.tool_axis_cone_rad) - 1e-9)
+    return fail("tool_axis_cone", "the tool axis is " + fmt(rad_to_deg(std::acos(std::clamp(axis.z(), -1.0, 1.0))), 1) +
+                                      " deg from straight down, more than tool_axis_cone_deg = " +
+                                      fmt(rad_to_deg(settings.tool_axis_cone_rad), 1) + "; lower chamfer_deg or widen the cone");
+  if (!(p.speed_mm_s > 0.0 && p.speed_mm_s <= settings.max_speed_mm_s))
+    return fail("speed", "speed " + fmt(p.speed_mm_s) + " mm/s is outside (0, " + fmt(settings.max_speed_mm_s) +
+                             "] (max_speed_mm_s); lower the region's feed_mm_s");
+  if (!(p.spindle_rpm >= 0.0 && p.spindle_rpm <= settings.max_spindle_rpm) ||
+      (p.kind == MoveKind::grind && !(p.spindle_rpm > 0.0)))
+    return fail("speed", "spindle speed " + fmt(p.spindle_rpm, 0) + " rpm is outside (0, " +
+                             fmt(settings.max_spindle_rpm, 0) + "] (max_spindle_rpm); fix the region's spindle_rpm");
+  return std::nullopt;
+}
+
+}  // namespace
+
+Status validate_limits(const Trajectory& trajectory, const PlannerSettings& settings) {
+  for (std::size_t i = 0; i < trajectory.points.size(); ++i)
+    if (auto e = check_limits(trajectory, i, settings)) return *e;
+  return {};
+}
+
 Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs, const PlannerSettings& settings) {
   std::map<std::string, const RegionInput*> by_name;
   for (const auto& in : inputs)
     if (in.region != nullptr) by_name[in.region->name] = &in;
-  const double cos_cone = std::cos(settings.tool_axis_cone_rad);
   for (std::size_t i = 0; i < trajectory.points.size(); ++i) {
     const auto& p = trajectory.points[i];
-    const std::string region = p.segment >= 0 && static_cast<std::size_t>(p.segment) < trajectory.segment_regions.size()
-                                   ? trajectory.segment_regions[static_cast<std::size_t>(p.segment)]
-                                   : std::string("?");
-    auto fail = [&](const std::string& rule, const std::string& what) {
-      return Error{"planning." + rule, "region '" + region + "', point " + std::to_string(i) + ", rule " + rule + ": " + what};
-    };
-    const Vec3& x = p.T_base_tool.position_mm;
-    const Quat& q = p.T_base_tool.orientation;
-    if (!x.allFinite() || !q.coeffs().allFinite() || std::abs(q.norm() - 1.0) > 1e-6)
-      return fail("finite", "the pose is not finite or its quaternion is not unit length (a planner bug)");
-    if ((x.array() < settings.workspace_min_mm.array()).any() || (x.array() > settings.workspace_max_mm.array()).any())
-      return fail("workspace", "position " + fmt(x) + " mm (base) is outside the workspace box " +
-                                   fmt(settings.workspace_min_mm) + " .. " + fmt(settings.workspace_max_mm) +
-                                   "; check the part placement, T_base_camera and [safety] workspace_*_mm");
-    const Vec3 axis = q.toRotationMatrix().col(2);
-    if (axis.z() < cos_cone - 1e-9)
-      return fail("tool_axis_cone", "the tool axis is " + fmt(rad_to_deg(std::acos(std::clamp(axis.z(), -1.0, 1.0))), 1) +
-                                        " deg from straight down, more than tool_axis_cone_deg = " +
-                                        fmt(rad_to_deg(settings.tool_axis_cone_rad), 1) + "; lower chamfer_deg or widen the cone");
-    if (!(p.speed_mm_s > 0.0) || p.speed_mm_s > settings.max_speed_mm_s)
-      return fail("speed", "speed " + fmt(p.speed_mm_s) + " mm/s is outside (0, " + fmt(settings.max_speed_mm_s) +
-                               "] (max_speed_mm_s); lower the region's feed_mm_s");
-    if (p.spindle_rpm < 0.0 || p.spindle_rpm > settings.max_spindle_rpm || (p.kind == MoveKind::grind && p.spindle_rpm <= 0.0))
-      return fail("speed", "spindle speed " + fmt(p.spindle_rpm, 0) + " rpm is outside (0, " +
-                               fmt(settings.max_spindle_rpm, 0) + "] (max_spindle_rpm); fix the region's spindle_rpm");
+    if (auto e = check_limits(trajectory, i, settings)) return *e;
+    const std::string region = region_of(trajectory, p);
+    auto fail = [&](const std::string& rule, const std::string& what) { return rule_error(region, i, rule, what); };
     const auto it = by_name.find(region);
     if (it == by_name.end())
       return fail("input", "the segment " + std::to_string(p.segment) + " names no planned region");

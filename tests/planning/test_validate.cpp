@@ -4,6 +4,8 @@
 
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <limits>
 #include <set>
 #include <string>
 
@@ -135,6 +137,52 @@ TEST(Validate, AHostileRecipeIsRefused) {
     ASSERT_FALSE(t);
     EXPECT_TRUE(t.error().code == "planning.tool_axis_cone" || t.error().code == "planning.gouge") << t.error().message;
   }
+}
+
+// What fettled checks just before every upload: the template-free rules, against the cell's
+// [safety] limits, on a trajectory that did not come out of plan_part (a hostile or corrupted
+// one). NaN must fail every comparison.
+TEST(ValidateLimits, AHostileTrajectoryIsRefusedAtThePointThatBreaksTheCellLimits) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  config::SafetySection safety;
+  safety.workspace_min_mm = {-1000.0, -1000.0, -100.0};
+  safety.workspace_max_mm = {1000.0, 1000.0, 1200.0};
+  safety.tool_axis_cone_deg = 60.0;
+  safety.max_speed_mm_s = 250.0;
+  safety.max_spindle_rpm = 12000.0;
+  const auto limits = PlannerSettings::from(safety);
+  ASSERT_TRUE(validate_limits(p.traj, limits)) << validate_limits(p.traj, limits).error().message;
+
+  const std::size_t g = p.first_grind_of("riser");
+  const std::size_t a = g - 1;  // the approach onto the riser: not a grind move
+  ASSERT_NE(p.traj.points[a].kind, MoveKind::grind);
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  auto refused = [&](const std::string& rule, std::size_t i, const std::function<void(TrajectoryPoint&)>& edit) {
+    auto t = p.traj;
+    edit(t.points[i]);
+    expect_rejected(validate_limits(t, limits), rule, "riser", i);
+  };
+  refused("workspace", g, [](TrajectoryPoint& q) { q.T_base_tool.position_mm.z() = -500.0; });
+  refused("workspace", a, [](TrajectoryPoint& q) { q.T_base_tool.position_mm.y() = 1000.5; });
+  refused("finite", g, [&](TrajectoryPoint& q) { q.T_base_tool.position_mm.x() = nan; });
+  refused("finite", g, [](TrajectoryPoint& q) { q.T_base_tool.orientation.coeffs() *= 2.0; });
+  refused("tool_axis_cone", g, [](TrajectoryPoint& q) {
+    q.T_base_tool.orientation = Quat(Eigen::AngleAxisd(deg_to_rad(180.0), Vec3::UnitX()));  // tool pointing up
+  });
+  refused("speed", g, [](TrajectoryPoint& q) { q.speed_mm_s = 250.5; });
+  refused("speed", a, [&](TrajectoryPoint& q) { q.speed_mm_s = nan; });
+  refused("speed", a, [](TrajectoryPoint& q) { q.speed_mm_s = 0.0; });
+  refused("speed", g, [](TrajectoryPoint& q) { q.spindle_rpm = 12001.0; });
+  refused("speed", a, [&](TrajectoryPoint& q) { q.spindle_rpm = nan; });  // passed the old check off a grind move
+  refused("speed", a, [](TrajectoryPoint& q) { q.spindle_rpm = -1.0; });
+  // The cell's limits, not the planner's defaults: a tighter [safety] refuses the same trajectory.
+  config::SafetySection tight = safety;
+  tight.max_speed_mm_s = 1.0;
+  const auto st = validate_limits(p.traj, PlannerSettings::from(tight));
+  ASSERT_FALSE(st);
+  EXPECT_EQ(st.error().code, "planning.speed");
+  EXPECT_NE(st.error().message.find("point 0,"), std::string::npos) << st.error().message;
 }
 
 TEST(Files, TrajectoryJsonCsvAndPreviewRoundTrip) {

@@ -792,20 +792,13 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       c.end();
       co_return true;
     }
-    double rpm = 0.0;
-    for (const auto& p : trajectory.points) {
-      rpm = std::max(rpm, p.spindle_rpm);
-      const auto& x = p.T_base_tool.position_mm;
-      for (int i = 0; i < 3; ++i)
-        if (!(x[i] >= cell.safety.workspace_min_mm[static_cast<std::size_t>(i)] &&
-              x[i] <= cell.safety.workspace_max_mm[static_cast<std::size_t>(i)]))
-          co_return fail(c, Fault{FaultCode::plan_failed, "trajectory point outside the [safety] workspace", c.step});
-      if (p.speed_mm_s > cell.safety.max_speed_mm_s)
-        co_return fail(c, Fault{FaultCode::plan_failed, "trajectory speed above [safety] max_speed_mm_s", c.step});
-    }
-    if (rpm > cell.safety.max_spindle_rpm)
-      co_return fail(c, Fault{FaultCode::plan_failed, "spindle speed above [safety] max_spindle_rpm", c.step});
+    // The planner validated it (gouges included); this is the last check before the robot,
+    // against the cell's [safety] limits, whatever produced the trajectory.
+    if (const auto limits = planning::validate_limits(trajectory, planning::PlannerSettings::from(cell.safety)); !limits)
+      co_return fail(c, limits.error(), FaultCode::plan_failed);
     c.end();
+    double rpm = 0.0;  // the spindle runs at the highest speed the trajectory asks for
+    for (const auto& p : trajectory.points) rpm = std::max(rpm, p.spindle_rpm);
 
     if (robot->state() != drivers::RobotState::ready && robot->state() != drivers::RobotState::uploaded)
       co_return fail(c, Fault{FaultCode::robot_unavailable,

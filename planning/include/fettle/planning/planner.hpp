@@ -105,6 +105,12 @@ Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& p
 Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs,
                 const PlannerSettings& settings);
 
+/// The rules of validate() that need no template, at every point: "finite", "workspace",
+/// "tool_axis_cone", "speed" (NaN fails each). fettled runs them again on every trajectory just
+/// before it uploads it, against the cell's [safety] limits (PlannerSettings::from), so nothing
+/// reaches the robot outside them whatever produced the trajectory. Errors as validate()'s.
+Status validate_limits(const Trajectory& trajectory, const PlannerSettings& settings);
+
 /// Plans every region, orders them, assembles and validates. A failing trajectory is never
 /// returned.
 Result<Trajectory> plan_part(const std::string& part_id, const std::vector<RegionInput>& inputs,
