@@ -20,6 +20,7 @@
 
 #include "fettle/daemon/service.hpp"
 #include "test_control_support.hpp"
+#include "test_systemd_support.hpp"
 
 namespace {
 
@@ -191,6 +192,24 @@ TEST(ServiceUser, RootIsRefusedUnlessAllowed) {
   EXPECT_TRUE(service::check_user(true, 0U));
   EXPECT_TRUE(service::check_user(false, 1000U));
   EXPECT_EQ(static_cast<bool>(service::check_user(false)), ::geteuid() != 0);
+}
+
+// The built fettled, as root without --allow-root: it stops before reading its config or
+// opening anything. The config path does not exist, so a refusal that came after the config
+// load would report the config instead.
+TEST(ServiceUser, FettledAsRootWithoutTheFlagExitsBeforeReadingItsConfig) {
+  if (::geteuid() != 0) GTEST_SKIP() << "not running as root: the refusal is reachable only as root (check_user itself is tested above)";
+  const std::string fettled = std::string(FETTLE_BIN_DIR) + "/fettled";
+  const std::string config = "/nonexistent-fettle-test/cell.toml";
+  const auto r = fettle::test::run(fettle::test::quote(fettled) + " --config " + config);
+  EXPECT_EQ(r.exit_code, 1) << r.output;
+  EXPECT_NE(r.output.find("refuses to run as root"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("--allow-root"), std::string::npos) << r.output;
+  EXPECT_EQ(r.output.find(config), std::string::npos) << "the config was read before the user check:\n" << r.output;
+  // and with the flag the same command gets as far as the config, and names it
+  const auto allowed = fettle::test::run(fettle::test::quote(fettled) + " --allow-root --config " + config);
+  EXPECT_NE(allowed.exit_code, 0) << allowed.output;
+  EXPECT_NE(allowed.output.find(config), std::string::npos) << allowed.output;
 }
 
 }  // namespace
