@@ -7,6 +7,8 @@
 #include <unistd.h>
 
 #include <atomic>
+#include <chrono>
+#include <string>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -20,6 +22,7 @@
 #include "fettle/drivers/spindle.hpp"
 #include "fettle/sim/spindle.hpp"
 #include "spindle_test_util.hpp"
+#include "../support/raw_tcp_peer.hpp"
 
 using namespace fettle::canopen;
 using fettle::Status;
@@ -204,4 +207,96 @@ TEST_F(SpindleSocketcandTest, MasterDrivesFettleSimSpindleInAnotherProcess) {
   EXPECT_TRUE(s.ok()) << s.error().message;
   s = await(io, [&](auto h) { master.stop(h); });
   EXPECT_TRUE(s.ok()) << s.error().message;
+}
+
+// Bad peers on the socketcand link (issue 11): a server that says nothing, one that is not
+// socketcand at all, one whose element never ends, one that sends a malformed frame. Each makes
+// start() fail with an error that says what came, in bounded time; none crashes or hangs.
+namespace {
+
+using fettle::test::RawTcpPeer;
+
+SpindleOptions quick_options() {
+  SpindleOptions o;
+  o.step_timeout_ms = 300;
+  o.sdo_timeout_ms = 200;
+  return o;
+}
+
+/// Reads on `fd` until the text received contains `what` (false after 2 s or on close).
+bool read_until_text(RawTcpPeer& peer, int fd, const std::string& what) {
+  std::string got;
+  const auto end = std::chrono::steady_clock::now() + 2s;
+  while (std::chrono::steady_clock::now() < end && !peer.stop_requested()) {
+    got += peer.read_some(fd, 50ms);
+    if (got.find(what) != std::string::npos) return true;
+  }
+  return false;
+}
+
+class SpindleSocketcandBadPeer : public SpindleSocketcandTest {
+ protected:
+  /// start() against `peer`, with short timeouts.
+  Status start_against(const RawTcpPeer& peer) {
+    SpindleDrive master(io, open_socketcand(io, "127.0.0.1", peer.port(), "can0"), quick_options());
+    master.on_event([this](const SpindleEvent& e) { events.push_back(e); });
+    return await(io, [&](auto h) { master.start(h); }, 5000ms);
+  }
+};
+
+}  // namespace
+
+TEST_F(SpindleSocketcandBadPeer, SilentServerFailsStartWithItsTimeoutNotAHang) {
+  RawTcpPeer peer([](RawTcpPeer& p, int fd) { p.hold(fd, 4s); });
+  const auto t0 = std::chrono::steady_clock::now();
+  const Status s = start_against(peer);
+  ASSERT_FALSE(s.ok());
+  EXPECT_NE(s.error().code, "test.no_completion") << s.error().message;
+  EXPECT_EQ(s.error().code.rfind("spindle.", 0), 0U) << s.error().code << ": " << s.error().message;
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, 3s);
+  EXPECT_EQ(peer.connections(), 1);
+}
+
+TEST_F(SpindleSocketcandBadPeer, AServerThatIsNotSocketcandIsALinkErrorNamingWhatItSaid) {
+  RawTcpPeer peer([](RawTcpPeer& p, int fd) {
+    (void)RawTcpPeer::send(fd, "HTTP/1.1 400 Bad Request\r\nContent-Type: text/html\r\n\r\n<html><body>no</body></html>");
+    p.hold(fd, 4s);
+  });
+  const Status s = start_against(peer);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, "spindle.link_lost") << s.error().message;
+  EXPECT_NE(s.error().message.find("expected '< hi >'"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("html"), std::string::npos) << s.error().message;
+  EXPECT_TRUE(saw(SpindleEvent::Kind::link_error));
+}
+
+TEST_F(SpindleSocketcandBadPeer, AnElementThatNeverEndsIsCutAfter256Characters) {
+  RawTcpPeer peer([](RawTcpPeer& p, int fd) {
+    (void)RawTcpPeer::send(fd, "< hi " + std::string(100000, 'x'));
+    p.hold(fd, 4s);
+  });
+  const Status s = start_against(peer);
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, "spindle.link_lost") << s.error().message;
+  EXPECT_NE(s.error().message.find("256 characters"), std::string::npos) << s.error().message;
+}
+
+TEST_F(SpindleSocketcandBadPeer, AMalformedFrameAfterTheHandshakeIsALinkErrorNamingIt) {
+  std::atomic<bool> handshake{false};
+  RawTcpPeer peer([&handshake](RawTcpPeer& p, int fd) {
+    (void)RawTcpPeer::send(fd, "< hi >");
+    if (!read_until_text(p, fd, "< open can0 >")) return;
+    (void)RawTcpPeer::send(fd, "< ok >");
+    if (!read_until_text(p, fd, "< rawmode >")) return;
+    (void)RawTcpPeer::send(fd, "< ok >");
+    handshake = true;
+    (void)RawTcpPeer::send(fd, "< frame 7G1 1.000000 zz >");
+    p.hold(fd, 4s);
+  });
+  const Status s = start_against(peer);
+  EXPECT_TRUE(handshake.load());
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, "spindle.link_lost") << s.error().message;
+  EXPECT_NE(s.error().message.find("cannot parse"), std::string::npos) << s.error().message;
+  EXPECT_NE(s.error().message.find("7G1"), std::string::npos) << s.error().message;
 }
