@@ -98,43 +98,172 @@ TEST_F(SimScan, AnEmptyFixtureShowsTheSceneWithoutThePart) {
   EXPECT_GT(static_cast<double>(deeper) / static_cast<double>(on_part), 0.98);
 }
 
+/// Depth noise on a table patch (left image border, where the table is seen past the part): a
+/// plane Z = a u + b v + c fitted to it, residuals against the sigma the configuration gives
+/// each pixel: sigma_z (Z / reference)^exponent (1 + grazing_gain (1 / cos(incidence) - 1)),
+/// the incidence of a table pixel being its ray's angle off the optical axis.
+struct TableNoise {
+  std::size_t samples = 0;
+  double normalized_sigma = 0;  ///< RMS of residual / configured sigma: 1 if the model holds
+  double rms_mm = 0;            ///< RMS residual
+};
+TableNoise table_noise(const Capture& cap, const NoiseModel& nm, double table_z_mm) {
+  const auto& K = cap.truth.intrinsics;
+  Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
+  std::vector<std::array<double, 4>> samples;
+  for (int v = K.height / 4; v < 3 * K.height / 4; ++v)
+    for (int u = 2; u < K.width / 10; ++u) {
+      const float z = cap.range.data[static_cast<std::size_t>(v * K.width + u)];
+      if (std::isnan(z) || std::abs(z - table_z_mm) > 5.0) continue;
+      const fettle::Vec3 r = K.ray(u, v);
+      const double cos_inc = 1.0 / r.norm();
+      const double expected = nm.sigma_z_mm * std::pow(z / nm.reference_distance_mm, nm.distance_exponent) *
+                              (1 + nm.grazing_gain * (1 / cos_inc - 1));
+      samples.push_back({double(u), double(v), double(z), expected});
+      const Eigen::Vector3d a(u, v, 1);
+      AtA += a * a.transpose();
+      Atb += a * z;
+    }
+  TableNoise out;
+  out.samples = samples.size();
+  if (samples.empty()) return out;
+  const Eigen::Vector3d plane = AtA.ldlt().solve(Atb);
+  double sum2 = 0, raw2 = 0;
+  for (const auto& s : samples) {
+    const double res = s[2] - (plane[0] * s[0] + plane[1] * s[1] + plane[2]);
+    sum2 += (res / s[3]) * (res / s[3]);
+    raw2 += res * res;
+  }
+  out.normalized_sigma = std::sqrt(sum2 / static_cast<double>(samples.size()));
+  out.rms_mm = std::sqrt(raw2 / static_cast<double>(samples.size()));
+  return out;
+}
+
+/// Only the depth noise (no dropouts, flying pixels or outliers).
+ScannerConfig depth_noise_only() {
+  auto cfg = sim_test::small_scanner();
+  cfg.noise.surface_dropout_fraction = 0;
+  cfg.noise.flying_pixel_fraction = 0;
+  cfg.noise.outlier_fraction = 0;
+  return cfg;
+}
+
 TEST_F(SimScan, DepthNoiseOnAFlatTablePatchMatchesTheConfiguredSigma) {
   for (double sigma : {0.05, 0.2}) {
-    auto cfg = sim_test::small_scanner();
+    auto cfg = depth_noise_only();
     cfg.noise.sigma_z_mm = sigma;
-    cfg.noise.surface_dropout_fraction = 0;
-    cfg.noise.flying_pixel_fraction = 0;
-    cfg.noise.outlier_fraction = 0;
-    const auto cap = Scanner(cfg).capture(*casting_, 0.0);
-    // Table pixels: base z of the ideal ray hit is 0 -> Z = 600 exactly (camera looks straight down).
-    // Fit a plane Z = a u + b v + c to a table patch (left image border) and compare the residual
-    // with the configured sigma (which grows with the incidence angle off-axis).
-    const auto& K = cap.truth.intrinsics;
-    Eigen::Matrix3d AtA = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d Atb = Eigen::Vector3d::Zero();
-    std::vector<std::array<double, 4>> samples;
-    for (int v = K.height / 4; v < 3 * K.height / 4; ++v)
-      for (int u = 2; u < K.width / 10; ++u) {
-        const float z = cap.range.data[static_cast<std::size_t>(v * K.width + u)];
-        if (std::isnan(z) || std::abs(z - 600.0f) > 5.0f) continue;
-        const fettle::Vec3 r = K.ray(u, v);
-        const double cos_inc = 1.0 / r.norm();
-        const double expected = sigma * std::pow(600.0 / 600.0, 2) * (1 + cfg.noise.grazing_gain * (1 / cos_inc - 1));
-        samples.push_back({double(u), double(v), double(z), expected});
-        const Eigen::Vector3d a(u, v, 1);
-        AtA += a * a.transpose();
-        Atb += a * z;
-      }
-    ASSERT_GT(samples.size(), 2000u);
-    const Eigen::Vector3d plane = AtA.ldlt().solve(Atb);
-    double sum2 = 0;
-    for (const auto& s : samples) {
-      const double res = s[2] - (plane[0] * s[0] + plane[1] * s[1] + plane[2]);
-      sum2 += (res / s[3]) * (res / s[3]);
-    }
-    const double normalized_sigma = std::sqrt(sum2 / static_cast<double>(samples.size()));
-    EXPECT_NEAR(normalized_sigma, 1.0, 0.1) << "sigma " << sigma;
+    const auto n = table_noise(Scanner(cfg).capture(*casting_, 0.0), cfg.noise, 600.0);
+    ASSERT_GT(n.samples, 2000u);
+    EXPECT_NEAR(n.normalized_sigma, 1.0, 0.1) << "sigma " << sigma;
   }
+}
+
+TEST_F(SimScan, DepthNoiseGrowsWithDistanceAsConfigured) {
+  // The camera 300 mm higher: the table at Z = 900 mm, sigma x (900/600)^2 = 2.25.
+  auto cfg = depth_noise_only();
+  const auto near = table_noise(Scanner(cfg).capture(*casting_, 0.0), cfg.noise, 600.0);
+  cfg.slide_origin_mm.z() += 300.0;
+  const auto far = table_noise(Scanner(cfg).capture(*casting_, 0.0), cfg.noise, 900.0);
+  ASSERT_GT(near.samples, 2000u);
+  ASSERT_GT(far.samples, 2000u);
+  EXPECT_NEAR(far.normalized_sigma, 1.0, 0.1);
+  EXPECT_NEAR(far.rms_mm / near.rms_mm, 2.25, 0.25);
+  // and with the exponent 1 it grows linearly: x 1.5
+  cfg.noise.distance_exponent = 1.0;
+  const auto linear = table_noise(Scanner(cfg).capture(*casting_, 0.0), cfg.noise, 900.0);
+  EXPECT_NEAR(linear.normalized_sigma, 1.0, 0.1);
+  EXPECT_NEAR(linear.rms_mm / near.rms_mm, 1.5, 0.17);
+}
+
+TEST_F(SimScan, DepthNoiseGrowsWithTheIncidenceAngleAsConfigured) {
+  // Off-axis table pixels are seen at up to ~20 deg: with a gain of 10 their sigma is 1.2-1.7x.
+  auto cfg = depth_noise_only();
+  cfg.noise.grazing_gain = 0.0;
+  const auto flat = table_noise(Scanner(cfg).capture(*casting_, 0.0), cfg.noise, 600.0);
+  cfg.noise.grazing_gain = 10.0;
+  const auto grazing = table_noise(Scanner(cfg).capture(*casting_, 0.0), cfg.noise, 600.0);
+  ASSERT_GT(grazing.samples, 2000u);
+  EXPECT_NEAR(flat.normalized_sigma, 1.0, 0.1);
+  EXPECT_NEAR(grazing.normalized_sigma, 1.0, 0.1);
+  EXPECT_GT(grazing.rms_mm / flat.rms_mm, 1.2);
+}
+
+/// Pixels where the ideal image sees the table, with their incidence: the camera looks straight
+/// down at it, so its Z is 600 mm at every pixel; a pixel and its 4 neighbours at 600 mm keeps
+/// out the part's base, whose height field meets the table at a slant.
+std::vector<std::pair<std::size_t, double>> table_pixels(const Capture& ideal) {
+  const auto& K = ideal.truth.intrinsics;
+  auto on_table = [&](int u, int v) {
+    const float z = ideal.range.data[static_cast<std::size_t>(v * K.width + u)];
+    return !std::isnan(z) && std::abs(z - 600.0f) < 1e-3f;
+  };
+  std::vector<std::pair<std::size_t, double>> out;
+  for (int v = 1; v + 1 < K.height; ++v)
+    for (int u = 1; u + 1 < K.width; ++u)
+      if (on_table(u, v) && on_table(u - 1, v) && on_table(u + 1, v) && on_table(u, v - 1) && on_table(u, v + 1))
+        out.emplace_back(static_cast<std::size_t>(v * K.width + u), fettle::rad_to_deg(std::acos(1.0 / K.ray(u, v).norm())));
+  return out;
+}
+
+TEST_F(SimScan, DropoutsStartAndEndAtTheConfiguredIncidenceAngles) {
+  auto cfg = depth_noise_only();
+  cfg.noise.sigma_z_mm = 0.001;
+  cfg.noise.enabled = false;
+  const auto table = table_pixels(Scanner(cfg).capture(*casting_, 0.0));
+  cfg.noise.enabled = true;
+  cfg.noise.dropout_start_deg = 8.0;
+  cfg.noise.dropout_full_deg = 12.0;
+  const auto cap = Scanner(cfg).capture(*casting_, 0.0);
+  std::size_t below = 0, below_lost = 0, beyond = 0, beyond_kept = 0, between = 0, between_lost = 0;
+  for (const auto& [k, inc] : table) {
+    const bool lost = std::isnan(cap.range.data[k]);
+    if (inc < 7.9) ++below, below_lost += lost;
+    else if (inc > 12.1) ++beyond, beyond_kept += !lost;
+    else if (inc > 9.5 && inc < 10.5) ++between, between_lost += lost;
+  }
+  ASSERT_GT(below, 1000u);
+  ASSERT_GT(beyond, 1000u);
+  ASSERT_GT(between, 200u);
+  EXPECT_EQ(below_lost, 0u);
+  EXPECT_EQ(beyond_kept, 0u);
+  // halfway between the two angles about half drop out
+  EXPECT_NEAR(static_cast<double>(between_lost) / static_cast<double>(between), 0.5, 0.1);
+}
+
+TEST_F(SimScan, SurfaceDropoutsCoverTheConfiguredFraction) {
+  auto cfg = depth_noise_only();
+  cfg.noise.enabled = false;
+  const auto table = table_pixels(Scanner(cfg).capture(*casting_, 0.0));
+  ASSERT_GT(table.size(), 20000u);
+  cfg.noise.enabled = true;
+  for (double fraction : {0.0, 0.2}) {
+    cfg.noise.surface_dropout_fraction = fraction;
+    const auto cap = Scanner(cfg).capture(*casting_, 0.0);
+    std::size_t lost = 0;
+    for (const auto& [k, inc] : table) lost += std::isnan(cap.range.data[k]);
+    EXPECT_NEAR(static_cast<double>(lost) / static_cast<double>(table.size()), fraction, 0.04) << fraction;
+  }
+}
+
+TEST_F(SimScan, RandomOutliersAppearAtTheConfiguredRate) {
+  auto cfg = depth_noise_only();
+  cfg.noise.sigma_z_mm = 0.001;
+  cfg.noise.enabled = false;
+  const auto ideal = Scanner(cfg).capture(*casting_, 0.0);
+  cfg.noise.enabled = true;
+  cfg.noise.outlier_fraction = 0.01;
+  const auto cap = Scanner(cfg).capture(*casting_, 0.0);
+  std::size_t both = 0, off = 0;
+  for (std::size_t k = 0; k < ideal.range.data.size(); ++k) {
+    const float a = ideal.range.data[k], b = cap.range.data[k];
+    if (std::isnan(a) || std::isnan(b)) continue;
+    ++both;
+    if (std::abs(a - b) > 1.0f) ++off;
+  }
+  ASSERT_GT(both, 100000u);
+  // uniform within +-60 mm: 59/60 of them land more than 1 mm off
+  EXPECT_NEAR(static_cast<double>(off) / static_cast<double>(both), 0.01 * 59.0 / 60.0, 0.002);
 }
 
 TEST_F(SimScan, SameSeedGivesIdenticalBytesAndAnotherSeedDoesNot) {
