@@ -94,6 +94,89 @@ TEST(SimGrind, BallSweepAlongTheStraightFlashRemovesItAndRecordsAGougeWhenTooLow
   }
 }
 
+/// A ball-12 pass along the straight flash at the golden face (the TCP at the ball's tip),
+/// ground with `o` (tool set here, no path noise).
+fettle::Result<GrindResult> straight_pass(Casting& c, GrindOptions o, double* length_mm = nullptr, double* face_mm = nullptr) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.straight_flashes.at(0);
+  const double L = 0.5 * (f.length_mm.min + f.length_mm.max);
+  const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
+  o.tool = find_tool(recipe, "ball-12");
+  o.path_noise_mm = 0.0;
+  fettle::Trajectory t;
+  for (double s : {-8.0, L + 8.0}) {
+    fettle::TrajectoryPoint q;
+    q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face);
+    q.speed_mm_s = 20;
+    q.spindle_rpm = 9000;
+    t.points.push_back(q);
+  }
+  if (length_mm != nullptr) *length_mm = L + 16.0;
+  if (face_mm != nullptr) *face_mm = face;
+  return grind(c, t, o);
+}
+
+TEST(SimGrind, ACalibrationBiasCutsThatDeepAndOnlyCutsBeyondTheThresholdAreGouges) {
+  const auto recipe = sim_test::pump_body();
+  // the bias is in the base frame; the unvaried casting sits level, so base z is part z
+  for (const double bias : {-0.01, -0.03, -0.1}) {
+    Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+    GrindOptions o;
+    o.path_bias_mm = fettle::Vec3(0.0, 0.0, bias);
+    double face = 0;
+    auto res = straight_pass(c, o, nullptr, &face);
+    ASSERT_TRUE(res.ok()) << res.error().message;
+    if (-bias <= o.gouge_threshold_mm) {
+      EXPECT_TRUE(res->gouges.empty()) << "bias " << bias << " is within the " << o.gouge_threshold_mm << " mm threshold";
+    } else {
+      ASSERT_EQ(res->gouges.size(), 1u) << "bias " << bias;
+      EXPECT_NEAR(res->gouges[0].depth_mm, -bias, 0.005) << "bias " << bias;
+      EXPECT_NEAR(res->gouges[0].position_mm.z(), face + bias, 0.01) << "bias " << bias;
+    }
+  }
+  // and a lateral bias moves the cut sideways: the groove's centre follows it
+  Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  GrindOptions o;
+  o.path_bias_mm = fettle::Vec3(0.0, 0.0, -0.2);
+  auto centred = straight_pass(c, o);
+  ASSERT_TRUE(centred.ok());
+  Casting d = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  o.path_bias_mm = fettle::Vec3(0.0, 1.0, -0.2);
+  auto shifted = straight_pass(d, o);
+  ASSERT_TRUE(shifted.ok());
+  ASSERT_EQ(centred->gouges.size(), 1u);
+  ASSERT_EQ(shifted->gouges.size(), 1u);
+  const auto& f = recipe.geometry.straight_flashes.at(0);
+  const fettle::Vec3 part_c = c.T_base_part().inverse() * centred->gouges[0].position_mm;
+  const fettle::Vec3 part_s = d.T_base_part().inverse() * shifted->gouges[0].position_mm;
+  EXPECT_NEAR(part_c.y(), f.start_mm[1], 0.3);
+  EXPECT_NEAR(part_s.y() - part_c.y(), 1.0, 0.3);
+}
+
+TEST(SimGrind, PosesAreInterpolatedAtMostTheConfiguredSpacingApart) {
+  const auto recipe = sim_test::pump_body();
+  for (const double step : {0.1, 0.05}) {
+    Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+    GrindOptions o;
+    o.interpolation_mm = step;
+    double length = 0;
+    auto res = straight_pass(c, o, &length);
+    ASSERT_TRUE(res.ok()) << res.error().message;
+    EXPECT_EQ(res->poses, 1u + static_cast<std::size_t>(std::ceil(length / step))) << "step " << step;
+  }
+  // A turn in place: the tool's far end (hypot(radius, length) from the TCP) moves at most the
+  // spacing between poses.
+  Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  GrindOptions o = disc();
+  fettle::Trajectory t = plunge(c, {0.0, 0.0, 200.0});  // in the air
+  t.points[1].T_base_tool.orientation = t.points[0].T_base_tool.orientation *
+                                        fettle::Quat(Eigen::AngleAxisd(0.5, fettle::Vec3::UnitX()));
+  auto res = grind(c, t, o);
+  ASSERT_TRUE(res.ok()) << res.error().message;
+  const double reach = std::hypot(0.5 * o.tool.diameter_mm, o.tool.length_mm);
+  EXPECT_EQ(res->poses, 1u + static_cast<std::size_t>(std::ceil(0.5 * reach / o.interpolation_mm)));
+}
+
 TEST(SimGrind, PathNoiseIsSeededAndDeterministic) {
   const auto recipe = sim_test::pump_body();
   const auto& f = recipe.geometry.risers.at(0);
