@@ -377,4 +377,35 @@ TEST(SimEvaluate, TemplateComparisonSeesTheRiserBeforeGrindingAndNotAfterAPerfec
   EXPECT_THAT(format_table({before}), HasSubstr("riser"));
 }
 
+// The paper's second comparison: one ground casting's scan against another ground casting of
+// the batch. Both ground perfectly, they differ only by their form deviation (+-0.2 mm each):
+// nothing over 0.5 mm. Against a reference that still carries its riser, the riser's stub is
+// over 0.5 mm; against itself, nothing over 0.3 mm.
+TEST(SimEvaluate, BatchConsistencyComparesAGroundCastingWithAnother) {
+  const auto recipe = sim_test::pump_body();
+  Casting a = Casting::make(recipe, 5), b = Casting::make(recipe, 9);
+  Casting b_unground = Casting::make(recipe, 9);
+  a.remove_all_material();
+  b.remove_all_material();
+  auto cfg = sim_test::small_scanner();
+  cfg.noise.enabled = false;
+  const auto scan_a = std::vector<Capture>{Scanner(cfg).capture(a, 0.0)};
+  const auto batch = evaluate_against_part(recipe, scan_a, b);
+  const auto self = evaluate_against_part(recipe, scan_a, a);
+  const auto unground = evaluate_against_part(recipe, scan_a, b_unground);
+  ASSERT_EQ(batch.regions.size(), recipe.regions.size());
+  for (std::size_t i = 0; i < batch.regions.size(); ++i) {
+    const auto& r = batch.regions[i];
+    EXPECT_GT(r.roi_points, 20u) << r.name;  // the flange's ring: a few dozen, its wall is vertical
+    EXPECT_LE(r.over_0_5, r.roi_points / 200) << r.name << ": two ground castings differ only by their form";
+    EXPECT_LE(self.regions[i].over_0_3, self.regions[i].roi_points / 200) << r.name << " against itself";
+    if (r.name == "riser") {
+      // the stub fills about a tenth of its ROI (which takes the face around it)
+      EXPECT_GT(unground.regions[i].over_0_5, unground.regions[i].roi_points / 20) << "the reference's riser is still there";
+      EXPECT_GT(unground.regions[i].over_0_5, 10 * (r.over_0_5 + 10));
+    }
+  }
+  EXPECT_THAT(format_table({batch}), HasSubstr("riser"));
+}
+
 }  // namespace
