@@ -153,6 +153,52 @@ TEST(SimGrind, ACalibrationBiasCutsThatDeepAndOnlyCutsBeyondTheThresholdAreGouge
   EXPECT_NEAR(part_s.y() - part_c.y(), 1.0, 0.3);
 }
 
+// A disc's rim, tilted, dips 0.1 mm into the flat pad face under the riser at a point between
+// two of the 24 rim samples (the tool turned 7.5 deg about its axis): the sampled rim alone sags
+// 0.107 mm there and saw no gouge; the gouge depth must be the rim's.
+TEST(SimGrind, ATiltedDiscsRimBetweenSamplesGougesAsDeepAsItCuts) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.risers.at(0);
+  for (const double dip : {0.1, 0.01}) {
+    Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+    GrindOptions o = disc();  // 50 mm disc
+    o.only_when_spindle_on = true;
+    const double r = 0.5 * o.tool.diameter_mm;
+    const fettle::Quat q_part_tool(Eigen::AngleAxisd(fettle::deg_to_rad(30.0), fettle::Vec3::UnitX()) *
+                                   Eigen::AngleAxisd(fettle::deg_to_rad(7.5), fettle::Vec3::UnitZ()));
+    // the rim's lowest point, tool frame: found finely
+    fettle::Vec3 low = fettle::Vec3::Zero();
+    for (int k = 0; k < 36000; ++k) {
+      const double a = 2 * pi() * k / 36000;
+      const fettle::Vec3 p = q_part_tool * fettle::Vec3(r * std::cos(a), r * std::sin(a), 0.0);
+      if (p.z() < low.z()) low = p;
+    }
+    const double face = c.golden_top_z_mm(f.center_mm[0], f.center_mm[1]);
+    for (double dx : {-2.0, 2.0})
+      for (double dy : {-2.0, 2.0})
+        ASSERT_NEAR(c.golden_top_z_mm(f.center_mm[0] + dx, f.center_mm[1] + dy), face, 1e-6) << "not flat around the riser";
+    const fettle::Vec3 tcp_part = fettle::Vec3(f.center_mm[0], f.center_mm[1], face - dip) - low;
+    fettle::Trajectory t;
+    fettle::TrajectoryPoint p;
+    p.T_base_tool.position_mm = c.T_base_part() * tcp_part;
+    p.T_base_tool.orientation = fettle::Quat(c.T_base_part().linear()) * q_part_tool;
+    p.speed_mm_s = 10;
+    p.spindle_rpm = 0;  // no cutting: only the gouge check
+    t.points = {p, p};
+    auto res = grind(c, t, o);
+    ASSERT_TRUE(res.ok()) << res.error().message;
+    if (dip <= o.gouge_threshold_mm) {
+      EXPECT_TRUE(res->gouges.empty()) << "dip " << dip;
+    } else {
+      ASSERT_EQ(res->gouges.size(), 1u) << "dip " << dip;
+      EXPECT_NEAR(res->gouges[0].depth_mm, dip, 0.005);
+      const fettle::Vec3 at = c.T_base_part().inverse() * res->gouges[0].position_mm;
+      EXPECT_NEAR(at.x(), f.center_mm[0], 0.5);
+      EXPECT_NEAR(at.y(), f.center_mm[1], 0.5);
+    }
+  }
+}
+
 TEST(SimGrind, PosesAreInterpolatedAtMostTheConfiguredSpacingApart) {
   const auto recipe = sim_test::pump_body();
   for (const double step : {0.1, 0.05}) {
