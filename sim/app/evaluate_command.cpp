@@ -40,15 +40,10 @@ int evaluate_cmd(const Args& a) {
     if (!a.trajectories.empty()) {
       const auto& t = trajectories[i];
       GrindOptions opt;
-      opt.tool = find_tool(recipe, t.segment_regions.empty() ? recipe.tools.front().name : [&] {
-        for (const auto& r : recipe.regions)
-          if (r.name == t.segment_regions.front()) return r.tool;
-        return recipe.tools.front().name;
-      }());
       opt.noise_seed = a.seeds[i];
-      auto res = grind(c, t, opt, limits, app::progress_printer());
-      if (!res) throw fettle::UserError(a.trajectories[i].string() + ": " + res.error().message);
-      gouges = res->gouges;
+      auto runs = grind_by_region(c, t, recipe, opt, {}, limits, app::progress_printer());
+      if (!runs) throw fettle::UserError(a.trajectories[i].string() + ": " + runs.error().message);
+      for (const auto& run : *runs) gouges.insert(gouges.end(), run.result.gouges.begin(), run.result.gouges.end());
     } else if (a.perfect) {
       // Oracle: all flash and riser material removed exactly (no tool), to see the floor
       // the scanner's noise alone sets on the counts.

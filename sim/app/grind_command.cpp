@@ -25,15 +25,6 @@ struct Args {
   app::ScannerOptions scanner;
 };
 
-std::string pick_tool(const fettle::config::PartRecipe& recipe, const fettle::Trajectory& t, const std::string& given) {
-  if (!given.empty()) return given;
-  for (const auto& name : t.segment_regions)
-    for (const auto& r : recipe.regions)
-      if (r.name == name) return r.tool;
-  if (recipe.tools.empty()) throw fettle::UserError(recipe.source.string() + ": the recipe has no tools");
-  return recipe.tools.front().name;
-}
-
 int grind_cmd(const Args& a) {
   const auto recipe = fettle::config::load_part(a.part);
   const auto trajectory = read_trajectory(a.trajectory);
@@ -43,42 +34,61 @@ int grind_cmd(const Args& a) {
     throw fettle::UserError(a.trajectory.string() + ": " + s.error().message);
   Casting casting = Casting::make(recipe, a.seed);
   GrindOptions opt;
-  opt.tool = find_tool(recipe, pick_tool(recipe, trajectory, a.tool));
   opt.path_noise_mm = a.path_noise_mm;
   opt.path_bias_mm = fettle::Vec3(a.bias_mm[0], a.bias_mm[1], a.bias_mm[2]);
   opt.noise_seed = a.seed;
   const auto t0 = std::chrono::steady_clock::now();
-  auto res = grind(casting, trajectory, opt, limits, app::progress_printer());
-  if (!res) throw fettle::UserError(a.trajectory.string() + ": " + res.error().message);
-  std::printf("executed %zu interpolated poses with tool %s in %.2f s\n", res->poses, opt.tool.name.c_str(),
-              app::seconds_since(t0));
+  const auto before = casting.material();
+  auto runs = grind_by_region(casting, trajectory, recipe, opt, a.tool, limits, app::progress_printer());
+  if (!runs) throw fettle::UserError(a.trajectory.string() + ": " + runs.error().message);
+  const auto after = casting.material();
+  std::size_t poses = 0;
+  std::vector<Gouge> gouges;
+  double deepest = 0.0;
+  std::printf("%-20s %-12s %10s %8s %14s\n", "run (region)", "tool", "poses", "gouges", "max depth mm");
+  for (const auto& run : *runs) {
+    poses += run.result.poses;
+    for (auto g : run.result.gouges) {
+      g.pose_index += poses - run.result.poses;  // index into the whole trajectory's poses
+      gouges.push_back(g);
+    }
+    deepest = std::max(deepest, run.result.max_gouge_depth_mm());
+    std::printf("%-20s %-12s %10zu %8zu %14.3f\n", run.region.empty() ? "(none)" : run.region.c_str(), run.tool.c_str(),
+                run.result.poses, run.result.gouges.size(), run.result.max_gouge_depth_mm());
+  }
+  std::printf("executed %zu interpolated poses in %zu run(s) in %.2f s\n", poses, runs->size(), app::seconds_since(t0));
+  double removed = 0.0;
   std::printf("%-20s %14s %14s %14s\n", "region", "before mm3", "after mm3", "max height mm");
-  for (std::size_t i = 0; i < res->before.size(); ++i)
-    std::printf("%-20s %14.1f %14.1f %14.2f\n", res->before[i].name.c_str(), res->before[i].volume_mm3,
-                res->after[i].volume_mm3, res->after[i].max_height_mm);
-  std::printf("removed %.1f mm3; gouges: %zu, max depth %.3f mm\n", res->removed_mm3(), res->gouges.size(),
-              res->max_gouge_depth_mm());
+  for (std::size_t i = 0; i < before.size(); ++i) {
+    removed += before[i].volume_mm3 - after[i].volume_mm3;
+    std::printf("%-20s %14.1f %14.1f %14.2f\n", before[i].name.c_str(), before[i].volume_mm3, after[i].volume_mm3,
+                after[i].max_height_mm);
+  }
+  std::printf("removed %.1f mm3; gouges: %zu, max depth %.3f mm\n", removed, gouges.size(), deepest);
   if (!a.out.empty()) {
     std::filesystem::create_directories(a.out);
     nlohmann::ordered_json j;
     j["part_id"] = recipe.id;
     j["seed"] = a.seed;
-    j["tool"] = opt.tool.name;
-    j["poses"] = res->poses;
-    j["removed_mm3"] = res->removed_mm3();
+    auto tools = nlohmann::ordered_json::array();
+    for (const auto& run : *runs) tools.push_back({{"region", run.region}, {"tool", run.tool}, {"poses", run.result.poses}});
+    j["runs"] = tools;
+    j["tool"] = runs->empty() ? std::string() : runs->front().tool;
+    j["poses"] = poses;
+    j["removed_mm3"] = removed;
     auto regions = nlohmann::ordered_json::array();
-    for (std::size_t i = 0; i < res->before.size(); ++i)
-      regions.push_back({{"name", res->before[i].name},
-                         {"volume_before_mm3", res->before[i].volume_mm3},
-                         {"volume_after_mm3", res->after[i].volume_mm3},
-                         {"max_height_after_mm", res->after[i].max_height_mm}});
+    for (std::size_t i = 0; i < before.size(); ++i)
+      regions.push_back({{"name", before[i].name},
+                         {"volume_before_mm3", before[i].volume_mm3},
+                         {"volume_after_mm3", after[i].volume_mm3},
+                         {"max_height_after_mm", after[i].max_height_mm}});
     j["regions"] = regions;
-    auto gouges = nlohmann::ordered_json::array();
-    for (const auto& g : res->gouges)
-      gouges.push_back({{"position_mm", {g.position_mm.x(), g.position_mm.y(), g.position_mm.z()}},
-                        {"depth_mm", g.depth_mm},
-                        {"pose_index", g.pose_index}});
-    j["gouges"] = gouges;
+    auto gouge_list = nlohmann::ordered_json::array();
+    for (const auto& g : gouges)
+      gouge_list.push_back({{"position_mm", {g.position_mm.x(), g.position_mm.y(), g.position_mm.z()}},
+                            {"depth_mm", g.depth_mm},
+                            {"pose_index", g.pose_index}});
+    j["gouges"] = gouge_list;
     if (auto s = fettle::write_file_atomic(a.out / "grind.json", j.dump(2) + "\n"); !s)
       throw fettle::UserError(s.error().message);
     if (a.rescan) {
@@ -99,7 +109,7 @@ FETTLE_COMMAND("grind", [](CLI::App& app, const fettle::cli::Common&) {
   cmd->add_option("--part", a->part, "Part recipe with a [geometry] table")->required()->check(CLI::ExistingFile);
   cmd->add_option("--seed", a->seed, "Casting number");
   cmd->add_option("--trajectory", a->trajectory, "Trajectory file (see docs/simulator.md)")->required()->check(CLI::ExistingFile);
-  cmd->add_option("--tool", a->tool, "Tool name from the recipe (default: the tool of the first segment's region)");
+  cmd->add_option("--tool", a->tool, "Tool name from the recipe for every point (default: each region's own tool, by the trajectory's segment_regions)");
   cmd->add_option("--path-noise-mm", a->path_noise_mm, "Executed path noise sigma per axis (mm)")->check(CLI::Range(0.0, 5.0));
   cmd->add_option("--bias-mm", a->bias_mm, "Executed path bias x y z (mm), a calibration error")->expected(3);
   cmd->add_option("--out", a->out, "Write grind.json (and the rescan with --rescan) here");

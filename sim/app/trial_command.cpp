@@ -233,31 +233,19 @@ int trial(const Args& a) {
     std::map<std::string, std::vector<Gouge>> gouges_by_region;
     std::vector<Gouge> gouges;
     bool grind_failed = false;
-    std::size_t i = 0;
-    const auto& traj = out->trajectory;
-    while (i < traj.points.size()) {
-      const auto region_of = [&](std::size_t k) { return traj.segment_regions.at(static_cast<std::size_t>(traj.points[k].segment)); };
-      const std::string name = region_of(i);
-      fettle::Trajectory sub;
-      sub.part_id = traj.part_id;
-      sub.segment_regions = traj.segment_regions;
-      while (i < traj.points.size() && region_of(i) == name) sub.points.push_back(traj.points[i++]);
-      const auto& region = *std::find_if(recipe.regions.begin(), recipe.regions.end(),
-                                         [&](const fettle::config::Region& r) { return r.name == name; });
-      GrindOptions go;
-      go.tool = find_tool(recipe, region.tool);
-      go.noise_seed = seed * 1000 + i;
-      auto g = grind(casting, sub, go, limits);
-      if (!g) {
-        std::fprintf(stderr, ": grinding %s FAILED: %s\n", name.c_str(), g.error().message.c_str());
-        sj["error"] = "grinding " + name + ": " + g.error().message;
-        grind_failed = true;
-        break;
-      }
-      for (const auto& gg : g->gouges) {
-        gouges_by_region[name].push_back(gg);
-        gouges.push_back(gg);
-      }
+    GrindOptions go;
+    go.noise_seed = seed;
+    auto runs = grind_by_region(casting, out->trajectory, recipe, go, {}, limits);
+    if (!runs) {
+      std::fprintf(stderr, ": FAILED: %s\n", runs.error().message.c_str());
+      sj["error"] = runs.error().message;
+      grind_failed = true;
+    } else {
+      for (const auto& run : *runs)
+        for (const auto& gg : run.result.gouges) {
+          gouges_by_region[run.region].push_back(gg);
+          gouges.push_back(gg);
+        }
     }
     if (grind_failed) {
       (void)fettle::write_file_atomic(dir / "evaluation.json", sj.dump(2) + "\n");

@@ -208,6 +208,49 @@ double GrindResult::max_gouge_depth_mm() const {
   return d;
 }
 
+Result<std::vector<RegionGrind>> grind_by_region(Casting& casting, const Trajectory& trajectory,
+                                                 const config::PartRecipe& recipe, const GrindOptions& base,
+                                                 const std::string& tool, const CellLimits& limits,
+                                                 const Progress& progress) {
+  if (recipe.tools.empty()) return Error{"sim.no_tool", recipe.source.string() + ": the recipe has no tools"};
+  const auto& pts = trajectory.points;
+  auto region_of = [&](std::size_t k) -> std::string {
+    const int s = pts[k].segment;
+    return s >= 0 && static_cast<std::size_t>(s) < trajectory.segment_regions.size()
+               ? trajectory.segment_regions[static_cast<std::size_t>(s)]
+               : std::string();
+  };
+  std::vector<RegionGrind> runs;
+  std::size_t i = 0;
+  while (i < pts.size()) {
+    RegionGrind run;
+    run.region = region_of(i);
+    Trajectory sub;
+    sub.part_id = trajectory.part_id;
+    sub.segment_regions = trajectory.segment_regions;
+    while (i < pts.size() && region_of(i) == run.region) sub.points.push_back(pts[i++]);
+    run.tool = tool;
+    if (run.tool.empty()) {
+      for (const auto& r : recipe.regions)
+        if (r.name == run.region) run.tool = r.tool;
+      if (run.tool.empty()) run.tool = recipe.tools.front().name;
+    }
+    GrindOptions go = base;
+    try {
+      go.tool = find_tool(recipe, run.tool);
+    } catch (const UserError& e) {
+      return Error{"sim.no_tool", e.what()};
+    }
+    go.noise_seed = base.noise_seed * 1000 + i;
+    auto g = grind(casting, sub, go, limits, progress);
+    if (!g) return Error{g.error().code, "grinding " + (run.region.empty() ? std::string("the trajectory") : run.region) +
+                                             ": " + g.error().message};
+    run.result = std::move(*g);
+    runs.push_back(std::move(run));
+  }
+  return runs;
+}
+
 const config::Tool& find_tool(const config::PartRecipe& recipe, const std::string& name) {
   for (const auto& t : recipe.tools)
     if (t.name == name) return t;

@@ -72,7 +72,9 @@ class SimCli : public ::testing::Test {
 
   /// A ball-12 sweep along the straight parting-line flash of casting `seed`, `clearance_mm`
   /// above the face it stands on (poses T_base_tool, from the casting's true placement).
-  fs::path flash_sweep(std::uint64_t seed, double clearance_mm, const std::string& name) const {
+  /// A ball pass along the straight flash (segment 0); with `riser`, then a plunge into the
+  /// riser 2 mm above its face (segment 1, region "riser", whose tool is the 16 mm flat end).
+  fs::path flash_sweep(std::uint64_t seed, double clearance_mm, const std::string& name, bool riser = false) const {
     const auto recipe = sim_test::pump_body();
     const auto c = fettle::sim::Casting::make(recipe, seed);
     const auto& f = recipe.geometry.straight_flashes.at(0);
@@ -85,6 +87,19 @@ class SimCli : public ::testing::Test {
       q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + clearance_mm);  // TCP at the ball's tip
       q.speed_mm_s = 20;
       q.spindle_rpm = 9000;
+      t.points.push_back(q);
+    }
+    if (riser) {
+      const auto& r = recipe.geometry.risers.at(0);
+      const double pad = c.golden_top_z_mm(r.center_mm[0], r.center_mm[1]);
+      t.segment_regions.push_back("riser");
+      fettle::TrajectoryPoint q;
+      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(r.center_mm[0], r.center_mm[1], pad + 2.0);
+      q.T_base_tool.orientation = fettle::Quat(c.T_base_part().linear());
+      q.speed_mm_s = 20;
+      q.spindle_rpm = 9000;
+      q.segment = 1;
+      t.points.push_back(q);
       t.points.push_back(q);
     }
     const fs::path p = dir_ / name;
@@ -156,29 +171,49 @@ TEST_F(SimCli, ScanIsByteIdenticalForTheSameSeedAndDiffersForAnother) {
 }
 
 TEST_F(SimCli, GrindRemovesTheFlashAndEvaluateTabulatesTheResult) {
-  const auto traj = flash_sweep(3, 0.05, "sweep.json");
-  const auto g = sim("grind --part " + kPart + " --seed 3 --trajectory " + traj.string() + " --out " +
+  // Two regions in one file: each is ground with its own tool from the recipe.
+  const auto both = flash_sweep(3, 0.05, "sweep-riser.json", true);
+  const auto g = sim("grind --part " + kPart + " --seed 3 --trajectory " + both.string() + " --out " +
                          (dir_ / "g").string() + " --rescan --width 516",
                      dir_);
   ASSERT_EQ(g.exit_code, 0) << g.out << g.err;
-  EXPECT_THAT(g.out, HasSubstr("with tool ball-12"));
+  EXPECT_THAT(g.out, HasSubstr("in 2 run(s)"));
   EXPECT_THAT(g.err, HasSubstr("grinding: "));  // progress
   const auto j = nlohmann::json::parse(slurp(dir_ / "g" / "grind.json"));
+  ASSERT_EQ(j.at("runs").size(), 2u) << j.dump();
+  EXPECT_EQ(j.at("runs")[0].at("region"), "side-parting-line");
+  EXPECT_EQ(j.at("runs")[0].at("tool"), "ball-12");
+  EXPECT_EQ(j.at("runs")[1].at("region"), "riser");
+  EXPECT_EQ(j.at("runs")[1].at("tool"), "flat-16");
   EXPECT_GT(j.at("removed_mm3").get<double>(), 10.0);
-  bool seen = false;
+  int seen = 0;
   for (const auto& r : j.at("regions")) {
-    if (r.at("name") != "side-parting-line") {
-      EXPECT_EQ(r.at("volume_before_mm3"), r.at("volume_after_mm3")) << r.dump();  // not touched
-      continue;
+    const double before = r.at("volume_before_mm3").get<double>(), after = r.at("volume_after_mm3").get<double>();
+    if (r.at("name") == "side-parting-line") {
+      ++seen;
+      EXPECT_LT(after, 0.05 * before) << r.dump();
+    } else if (r.at("name") == "riser") {
+      ++seen;
+      EXPECT_LT(after, 0.9 * before) << r.dump();  // a 16 mm core of the riser, down to 2 mm above its face
+      EXPECT_GT(after, 0.1 * before) << r.dump();
+    } else {
+      EXPECT_EQ(before, after) << r.dump();  // not touched
     }
-    seen = true;
-    EXPECT_LT(r.at("volume_after_mm3").get<double>(), 0.05 * r.at("volume_before_mm3").get<double>()) << r.dump();
   }
-  EXPECT_TRUE(seen);
+  EXPECT_EQ(seen, 2);
+  // --tool puts one tool on every point
+  const auto one = sim("grind --part " + kPart + " --seed 3 --trajectory " + both.string() + " --tool ball-12 --out " +
+                           (dir_ / "g1").string() + " --width 516",
+                       dir_);
+  ASSERT_EQ(one.exit_code, 0) << one.out << one.err;
+  const auto j1 = nlohmann::json::parse(slurp(dir_ / "g1" / "grind.json"));
+  ASSERT_EQ(j1.at("runs").size(), 2u);
+  EXPECT_EQ(j1.at("runs")[1].at("tool"), "ball-12");
   EXPECT_TRUE(fs::exists(dir_ / "g" / "ground-view0.ply"));
   EXPECT_TRUE(fs::exists(dir_ / "g" / "ground-view0.truth.json"));
 
   // Evaluate: the same grind on castings 3 and 5, template comparison and batch consistency.
+  const auto traj = flash_sweep(3, 0.05, "sweep.json");
   const auto traj5 = flash_sweep(5, 0.05, "sweep5.json");
   const auto e = sim("evaluate --part " + kPart + " --seeds 3,5 --trajectory " + traj.string() + " --trajectory " +
                          traj5.string() + " --width 516",

@@ -301,6 +301,24 @@ struct GrindResult {
 Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const GrindOptions& options,
                           const CellLimits& limits = {}, const Progress& progress = {});
 
+/// One run of a planned trajectory: consecutive points of one region, ground with its tool.
+struct RegionGrind {
+  std::string region;  ///< from the trajectory's segment_regions ("" if it names none)
+  std::string tool;
+  GrindResult result;
+};
+
+/// Grinds a planned trajectory run by run: each run of consecutive points of one region (by
+/// its segment's entry in segment_regions) with that region's tool from the recipe, or every
+/// run with `tool` when it is not empty; a trajectory without region names is one run with the
+/// recipe's first tool. Run k's path noise is seeded base.noise_seed * 1000 + (index of the
+/// point after it), so a run's noise does not depend on the other runs. Stops at the first
+/// error (naming the region). base.tool is ignored.
+Result<std::vector<RegionGrind>> grind_by_region(Casting& casting, const Trajectory& trajectory,
+                                                 const config::PartRecipe& recipe, const GrindOptions& base,
+                                                 const std::string& tool = {}, const CellLimits& limits = {},
+                                                 const Progress& progress = {});
+
 /// Tool by name from the recipe (throws UserError if absent).
 const config::Tool& find_tool(const config::PartRecipe& recipe, const std::string& name);
 
