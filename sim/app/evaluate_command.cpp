@@ -34,6 +34,7 @@ int evaluate_cmd(const Args& a) {
   std::vector<Casting> ground;
   std::vector<std::vector<Capture>> scans;
   std::vector<Evaluation> template_eval;
+  std::vector<std::pair<std::uint64_t, std::vector<RegionTruth>>> truth;  // material left, per casting
   for (std::size_t i = 0; i < a.seeds.size(); ++i) {
     Casting c = Casting::make(recipe, a.seeds[i]);
     std::vector<Gouge> gouges;
@@ -51,6 +52,7 @@ int evaluate_cmd(const Args& a) {
     }
     std::fprintf(stderr, "scanning casting %llu (%zu views)\n", static_cast<unsigned long long>(a.seeds[i]),
                  scanner.config().photo_positions_mm.size());
+    truth.emplace_back(a.seeds[i], c.material());
     auto caps = scanner.capture_all(c);
     template_eval.push_back(evaluate_against_template(recipe, caps, c, gouges));
     scans.push_back(std::move(caps));
@@ -59,6 +61,13 @@ int evaluate_cmd(const Args& a) {
   const char* state = !a.trajectories.empty() ? "after grinding" : a.perfect ? "perfectly ground (oracle)" : "as cast";
   std::printf("== Template comparison (%s): points farther than 0.3/0.4/0.5 mm from the golden template ==\n", state);
   std::printf("%s", format_table(template_eval).c_str());
+  // The scan's largest residual includes the scanner's outliers; the simulator knows what is left.
+  std::printf("== Material left (simulator truth): volume mm3 / largest height above the golden surface mm ==\n");
+  for (const auto& [seed, regions] : truth) {
+    std::printf("casting %-4llu", static_cast<unsigned long long>(seed));
+    for (const auto& r : regions) std::printf("  %s %.1f / %.2f", r.name.c_str(), r.volume_mm3, r.max_height_mm);
+    std::printf("\n");
+  }
   if (ground.size() > 1) {
     std::vector<Evaluation> batch;
     for (std::size_t i = 1; i < ground.size(); ++i) batch.push_back(evaluate_against_part(recipe, scans[i], ground[0]));

@@ -221,6 +221,8 @@ TEST_F(SimCli, GrindRemovesTheFlashAndEvaluateTabulatesTheResult) {
   ASSERT_EQ(e.exit_code, 0) << e.out << e.err;
   EXPECT_THAT(e.out, HasSubstr("Template comparison (after grinding)"));
   EXPECT_THAT(e.out, HasSubstr("Batch consistency (after grinding)"));
+  EXPECT_THAT(e.out, HasSubstr("Material left (simulator truth)"));
+  EXPECT_THAT(e.out, ::testing::ContainsRegex("casting 5 .*side-parting-line [0-9.]+ / [0-9.]+"));
   EXPECT_THAT(e.out, HasSubstr("side-parting-line"));
   EXPECT_THAT(e.err, HasSubstr("scanning casting 5"));
 }
