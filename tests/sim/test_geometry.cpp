@@ -85,6 +85,71 @@ fettle::config::PartRecipe coarse_pump_body() {
   return recipe;
 }
 
+// The body of a casting differs from the golden one by its smooth form deviation: within
+// +-form_deviation_mm everywhere, and really there (over half the amplitude somewhere); none when
+// the recipe sets 0.
+TEST(SimGeometry, FormDeviationStaysWithinItsAmplitudeAndIsThere) {
+  auto recipe = coarse_pump_body();
+  const double amp = recipe.geometry.variation.form_deviation_mm;
+  ASSERT_GT(amp, 0.0);
+  auto largest_deviation = [](const Casting& c) {
+    double worst = 0;
+    std::size_t n = 0;
+    for (double y = -150; y <= 150; y += 2.5)
+      for (double x = -150; x <= 150; x += 2.5) {
+        const double body = c.surface_z_mm(x, y), golden = c.golden_top_z_mm(x, y);
+        if (std::isnan(body) || std::isnan(golden)) continue;
+        // away from walls, where the grid's surface and the exact one differ by the step
+        bool smooth = true;
+        for (double dx : {-3.0, 3.0})
+          for (double dy : {-3.0, 3.0}) smooth = smooth && std::abs(c.golden_top_z_mm(x + dx, y + dy) - golden) < 1.0;
+        if (!smooth) continue;
+        ++n;
+        worst = std::max(worst, std::abs(body - golden));
+      }
+    EXPECT_GT(n, 1000u);
+    return worst;
+  };
+  for (std::uint64_t seed : {1, 2, 3, 4, 5}) {
+    Casting c = Casting::make(recipe, seed);
+    c.remove_all_material();
+    const double worst = largest_deviation(c);
+    EXPECT_LE(worst, amp + 1e-4) << "seed " << seed;
+    EXPECT_GT(worst, 0.5 * amp) << "seed " << seed;
+  }
+  recipe.geometry.variation.form_deviation_mm = 0.0;
+  Casting flat = Casting::make(recipe, 1);
+  flat.remove_all_material();
+  EXPECT_LT(largest_deviation(flat), 1e-5);
+}
+
+// The scene around the part: the clamps and the clutter stand on the table where the camera
+// sees them (an empty fixture, ideal capture); without them, nothing rises above the table.
+TEST(SimGeometry, ClampsAndClutterStandOnTheTableInTheScan) {
+  auto count_above_table = [](const fettle::config::PartRecipe& recipe) {
+    Casting c = Casting::make(recipe, 3);
+    c.take_off_fixture();
+    auto cfg = sim_test::small_scanner();
+    cfg.noise.enabled = false;
+    const auto cap = Scanner(cfg).capture(c, 0.0);
+    std::size_t above = 0;
+    for (std::size_t k = 0; k < cap.cloud.size(); ++k)
+      if (cap.cloud.is_valid(k) && (cap.truth.T_base_camera * cap.cloud.points[k].cast<double>()).z() > 1.0) ++above;
+    return above;
+  };
+  auto recipe = coarse_pump_body();
+  ASSERT_GT(recipe.geometry.clamps, 0);
+  ASSERT_GT(recipe.geometry.clutter_items, 0);
+  const auto with_both = count_above_table(recipe);
+  recipe.geometry.clutter_items = 0;
+  const auto clamps_only = count_above_table(recipe);
+  recipe.geometry.clamps = 0;
+  const auto none = count_above_table(recipe);
+  EXPECT_EQ(none, 0u);
+  EXPECT_GT(clamps_only, 500u);
+  EXPECT_GT(with_both, clamps_only + 100u);
+}
+
 TEST(SimGeometry, PlacementVariesXYAndYawOverTheWholeConfiguredRangeAndNoTiltByDefault) {
   auto recipe = coarse_pump_body();
   recipe.geometry.variation.placement_tolerance_mm = 2.0;
