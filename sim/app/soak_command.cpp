@@ -107,6 +107,10 @@ struct FaultKind {
   std::vector<std::string> undo;    ///< lines that end the condition once the fault is latched
 };
 
+/// At most this share of the drawn faults may find their cycle ended before the moment to
+/// inject them (a robot fault in a cycle refused at planning, say).
+constexpr double kMaxNotInjectedPct = 25.0;
+
 std::vector<FaultKind> fault_kinds() {
   using W = FaultKind::When;
   return {
@@ -256,14 +260,14 @@ class JournalChecker {
       problems.push_back(what + "report.json has no final result");
     for (const auto& f : r.value("files", json::array()))
       if (!fs::exists(dir / f.get<std::string>())) problems.push_back(what + "report.json lists " + f.get<std::string>() + ", missing");
-    // Every upload (also a re-grind's) must follow its own validate step.
+    // Every upload (also a re-grind's) must follow its own validate step, one that passed.
     bool validated = false;
     for (const auto& s : r.value("steps", json::array())) {
       const std::string step = s.value("step", "");
-      if (step.rfind("validate", 0) == 0) validated = true;
+      if (step.rfind("validate", 0) == 0) validated = !s.value("failed", false);
       if (step.rfind("upload", 0) == 0) {
         ++uploads_;
-        if (!validated) problems.push_back(what + "'" + step + "' without a validate step before it");
+        if (!validated) problems.push_back(what + "'" + step + "' without a passed validate step before it");
         validated = false;
       }
     }
@@ -582,6 +586,13 @@ class Soak {
           o.problems.push_back("cycle " + end.value("id", std::string("?")) + " ended in the journal with fault code " +
                                std::to_string(end.value("fault_code", 0)) + ", the PLC got " +
                                std::to_string(o.plc_fault_code));
+      } else if (!o.plc_result.empty()) {
+        // and that of a cycle that ended without a fault the result the PLC got (the record's
+        // result is checked against the end line as the journal is read)
+        const auto& end = journal_->last_end();
+        if (end.value("result", std::string()) != o.plc_result)
+          o.problems.push_back("cycle " + end.value("id", std::string("?")) + " ended in the journal with result " +
+                               end.value("result", std::string("none")) + ", the PLC got " + o.plc_result);
       }
     }
     o.state = std::string(fettle::packml::name(state()));
@@ -690,8 +701,31 @@ class Soak {
       }
       ++by_result[o.plc_fault_code ? "fault " + std::to_string(o.plc_fault_code) : "result " + o.plc_result];
     }
+    // The soak must have tested what it claims: with enough faults drawn (10 a device), every
+    // device had one injected and reported; and few drawn faults found nothing to act on.
+    std::map<std::string, int> reached_by_device;
+    for (const auto& k : fault_kinds()) reached_by_device[k.device];
+    int drawn = 0, not_injected = 0;
+    for (const auto& o : outcomes_) {
+      if (o.fault.empty()) continue;
+      ++drawn;
+      if (!o.not_injected.empty()) ++not_injected;
+      else if (o.expected_codes.count(o.plc_fault_code) != 0) ++reached_by_device[o.device];
+    }
+    if (drawn >= 10 * static_cast<int>(reached_by_device.size()))
+      for (const auto& [device, reached] : reached_by_device)
+        if (reached == 0)
+          problems_.push_back("no " + device + " fault was injected and reported in " + std::to_string(drawn) +
+                              " drawn: the soak did not test that device");
+    if (drawn >= 20 && 100.0 * not_injected > kMaxNotInjectedPct * drawn)
+      problems_.push_back(std::to_string(not_injected) + " of " + std::to_string(drawn) +
+                          " drawn faults were not injected (their cycle ended before the moment to inject; at most " +
+                          pct(kMaxNotInjectedPct) + " may be): the soak tested less than it reports");
     json j;
     j["cycles"] = n;
+    j["faults_drawn"] = drawn;
+    j["faults_not_injected"] = not_injected;
+    j["faults_reported_by_device"] = reached_by_device;
     j["fault_rate"] = a_.fault_rate;
     j["seed"] = a_.seed;
     j["resolution"] = a_.resolution;
@@ -723,7 +757,9 @@ class Soak {
     cell_->stop();
 
     std::printf("\n== soak summary (%s) ==\n", (a_.out / "soak.json").c_str());
-    std::printf("cycles %d; faults injected %d, reported at the PLC with their code %d\n", n, faults_injected, faults_reported);
+    std::printf("cycles %d; faults drawn %d, injected %d (%d not: their cycle ended first), reported at the PLC with their code %d\n",
+                n, drawn, faults_injected, not_injected, faults_reported);
+    for (const auto& [device, reached] : reached_by_device) std::printf("  device   %-50s %d reported\n", device.c_str(), reached);
     for (const auto& [k, v] : by_fault) std::printf("  injected %-50s %d\n", k.c_str(), v);
     for (const auto& [k, v] : by_result) std::printf("  outcome  %-50s %d\n", k.c_str(), v);
     std::printf("journal: %d started, %d ended, %d records checked complete, %d uploads each after validation\n",

@@ -494,11 +494,30 @@ TEST_F(Fettled, B_EveryFaultEndsInItsStateAndTheCellRecovers) {
     if (j["event"] == "end") results[j["id"]] = j["result"];
   }
   std::multiset<std::string> kinds;
+  int marked = 0;  // faulted cycles whose record marks the step the fault ended
   for (const auto& [id, result] : results) {
     EXPECT_FALSE(result.empty()) << "cycle " << id << " never ended";
     kinds.insert(result);
-    EXPECT_TRUE(fs::exists(dir_ / "state/cycles" / id / "report.json")) << id;
+    const auto path = dir_ / "state/cycles" / id / "report.json";
+    EXPECT_TRUE(fs::exists(path)) << id;
+    if (!fs::exists(path)) continue;
+    // A step the fault ended is marked failed, and only that one, the last: a record never shows
+    // a failed step (a refused validate, say) as passed.
+    const auto steps = nlohmann::json::parse(read_text(path)).value("steps", nlohmann::json::array());
+    std::vector<std::size_t> failed;
+    for (std::size_t i = 0; i < steps.size(); ++i)
+      if (steps[i].value("failed", false)) failed.push_back(i);
+    if (result == "OK" || result == "NOK") {
+      EXPECT_TRUE(failed.empty()) << id << ": " << steps.dump();
+    } else {
+      EXPECT_LE(failed.size(), 1U) << id << ": " << steps.dump();
+      if (!failed.empty()) {
+        EXPECT_EQ(failed.front(), steps.size() - 1) << id << ": " << steps.dump();
+        ++marked;
+      }
+    }
   }
+  EXPECT_GE(marked, 4) << "the faults of B end their cycles inside a step (camera, robot, spindle)";
   EXPECT_EQ(kinds.count("FAULT"), 6U) << journal;
   EXPECT_EQ(kinds.count("ABORTED"), 2U) << journal;
   EXPECT_EQ(kinds.count("OK") + kinds.count("NOK"), 1U) << journal;

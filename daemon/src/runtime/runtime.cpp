@@ -127,7 +127,7 @@ struct Cycle {
   std::function<void()> cancel;  ///< cancels the current wait
   std::string step;
   Clock::time_point step_t0 = Clock::now();
-  json steps = json::array();  ///< [{step, ms}]
+  json steps = json::array();  ///< [{step, ms}], the step a fault ended also {failed: true}
   bool motion = false;         ///< the robot may move or the spindle turns
   std::vector<View> views;
   std::optional<ProcessOutput> processed;
@@ -142,9 +142,12 @@ struct Cycle {
     step = name;
     step_t0 = Clock::now();
   }
-  void end() {
+  /// Records the step in progress; `failed` marks the one the cycle's fault ended.
+  void end(bool failed = false) {
     if (step.empty()) return;
-    steps.push_back({{"step", step}, {"ms", ms_since(step_t0)}});
+    json record{{"step", step}, {"ms", ms_since(step_t0)}};
+    if (failed) record["failed"] = true;
+    steps.push_back(std::move(record));
     step.clear();
   }
 };
@@ -994,7 +997,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
 
   void finish_cycle(const std::shared_ptr<Cycle>& cp) {
     Cycle& c = *cp;
-    c.end();
+    c.end(c.fault.has_value());
     auto& s = c.summary;
     s.duration_s = ms_since(c.t0) / 1000.0;
     if (c.fault) {
