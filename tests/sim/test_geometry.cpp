@@ -37,17 +37,20 @@ TEST(SimGeometry, RiserVolumeMatchesTheCylinderWithinTwoPercent) {
   EXPECT_NEAR(r.max_height_mm, h + std::tan(tilt) * d / 2, 0.1);
 }
 
+// Every ring fin: the flange's ring flash and the boss's small circle flash.
 TEST(SimGeometry, RingFlashVolumeMatchesTheAnnulusWithinTwoPercent) {
   const auto recipe = sim_test::pump_body();
+  ASSERT_GE(recipe.geometry.ring_flashes.size(), 2u) << "the pump body has a flange ring and a boss circle";
   const auto c = Casting::make(recipe, 1, CastingOptions{.vary = false});
-  const auto& f = recipe.geometry.ring_flashes.at(0);
-  const double R = f.cylinder.radius_mm, e = 0.5 * (f.extent_mm.min + f.extent_mm.max);
-  const double t = 0.5 * (f.thickness_mm.min + f.thickness_mm.max);
-  const double expected = pi() * ((R + e) * (R + e) - R * R) * t;
   const auto material = c.material();
-  const auto& r = region(material, f.region);
-  EXPECT_NEAR(r.volume_mm3, expected, 0.02 * expected);
-  EXPECT_NEAR(r.max_height_mm, e, 0.1);
+  for (const auto& f : recipe.geometry.ring_flashes) {
+    const double R = f.cylinder.radius_mm, e = 0.5 * (f.extent_mm.min + f.extent_mm.max);
+    const double t = 0.5 * (f.thickness_mm.min + f.thickness_mm.max);
+    const double expected = pi() * ((R + e) * (R + e) - R * R) * t;
+    const auto& r = region(material, f.region);
+    EXPECT_NEAR(r.volume_mm3, expected, 0.02 * expected) << f.region;
+    EXPECT_NEAR(r.max_height_mm, e, 0.1) << f.region;
+  }
 }
 
 TEST(SimGeometry, StraightFlashVolumeMatchesTheWallWithinTwoPercent) {
