@@ -199,6 +199,44 @@ TEST(SimGrind, ATiltedDiscsRimBetweenSamplesGougesAsDeepAsItCuts) {
   }
 }
 
+// The executed path's noise: a ball dipping 0.2 mm into the flat pad face (by a bias) 400
+// times, lifting 1 mm in between (one pose per point: interpolation coarser than the moves),
+// spindle off (nothing cut, only the gouges measured): the gouge depths spread with the
+// configured sigma about 0.2 mm.
+TEST(SimGrind, PathNoiseHasTheConfiguredSigma) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.risers.at(0);
+  Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const double face = c.golden_top_z_mm(f.center_mm[0], f.center_mm[1]);
+  constexpr int kDips = 400;
+  fettle::Trajectory t;
+  for (int k = 0; k < 2 * kDips; ++k) {
+    fettle::TrajectoryPoint p;
+    p.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.center_mm[0], f.center_mm[1], face + (k % 2 ? 1.0 : 0.0));
+    p.speed_mm_s = 10;
+    p.spindle_rpm = 0;
+    t.points.push_back(p);
+  }
+  for (const double sigma : {0.02, 0.05}) {
+    GrindOptions o;
+    o.tool = find_tool(recipe, "ball-12");
+    o.path_noise_mm = sigma;
+    o.path_bias_mm = fettle::Vec3(0.0, 0.0, -0.2);
+    o.interpolation_mm = 5.0;
+    auto res = grind(c, t, o);
+    ASSERT_TRUE(res.ok()) << res.error().message;
+    ASSERT_EQ(res->poses, static_cast<std::size_t>(2 * kDips));
+    ASSERT_EQ(res->gouges.size(), static_cast<std::size_t>(kDips)) << "one per dip";
+    double mean = 0, var = 0;
+    for (const auto& g : res->gouges) mean += g.depth_mm;
+    mean /= kDips;
+    for (const auto& g : res->gouges) var += (g.depth_mm - mean) * (g.depth_mm - mean);
+    const double sd = std::sqrt(var / (kDips - 1));
+    EXPECT_NEAR(mean, 0.2, 0.2 * sigma) << "sigma " << sigma;
+    EXPECT_NEAR(sd, sigma, 0.15 * sigma) << "sigma " << sigma;
+  }
+}
+
 TEST(SimGrind, PosesAreInterpolatedAtMostTheConfiguredSpacingApart) {
   const auto recipe = sim_test::pump_body();
   for (const double step : {0.1, 0.05}) {
