@@ -311,8 +311,8 @@ struct RegionGrind {
 /// Grinds a planned trajectory run by run: each run of consecutive points of one region (by
 /// its segment's entry in segment_regions) with that region's tool from the recipe, or every
 /// run with `tool` when it is not empty; a trajectory without region names is one run with the
-/// recipe's first tool. Run k's path noise is seeded base.noise_seed * 1000 + (index of the
-/// point after it), so a run's noise does not depend on the other runs. Stops at the first
+/// recipe's first tool. A run's path noise is seeded from base.noise_seed and the index of
+/// the point after the run, so it does not depend on the other runs. Stops at the first
 /// error (naming the region). base.tool is ignored.
 Result<std::vector<RegionGrind>> grind_by_region(Casting& casting, const Trajectory& trajectory,
                                                  const config::PartRecipe& recipe, const GrindOptions& base,
