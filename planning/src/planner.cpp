@@ -659,13 +659,6 @@ Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& p
 
 namespace {
 
-/// The region a trajectory point belongs to (through its segment), "?" if none.
-std::string region_of(const Trajectory& trajectory, const TrajectoryPoint& p) {
-  return p.segment >= 0 && static_cast<std::size_t>(p.segment) < trajectory.segment_regions.size()
-             ? trajectory.segment_regions[static_cast<std::size_t>(p.segment)]
-             : std::string("?");
-}
-
 Error rule_error(const std::string& region, std::size_t i, const std::string& rule, const std::string& what) {
   return Error{"planning." + rule, "region '" + region + "', point " + std::to_string(i) + ", rule " + rule + ": " + what};
 }
@@ -675,7 +668,7 @@ Error rule_error(const std::string& region, std::size_t i, const std::string& ru
 std::optional<Error> check_limits(const Trajectory& trajectory, std::size_t i, const PlannerSettings& settings) {
   const auto& p = trajectory.points[i];
   auto fail = [&](const std::string& rule, const std::string& what) {
-    return rule_error(region_of(trajectory, p), i, rule, what);
+    return rule_error(trajectory.region_of(p, "?"), i, rule, what);
   };
   const Vec3& x = p.T_base_tool.position_mm;
   const Quat& q = p.T_base_tool.orientation;
@@ -715,7 +708,7 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
   for (std::size_t i = 0; i < trajectory.points.size(); ++i) {
     const auto& p = trajectory.points[i];
     if (auto e = check_limits(trajectory, i, settings)) return *e;
-    const std::string region = region_of(trajectory, p);
+    const std::string region = trajectory.region_of(p, "?");
     auto fail = [&](const std::string& rule, const std::string& what) { return rule_error(region, i, rule, what); };
     const auto it = by_name.find(region);
     if (it == by_name.end())

@@ -42,15 +42,13 @@ struct Planned {
   Trajectory traj;
   std::size_t first_grind_of(const std::string& region) const {
     for (std::size_t i = 0; i < traj.points.size(); ++i)
-      if (traj.points[i].kind == MoveKind::grind &&
-          traj.segment_regions[static_cast<std::size_t>(traj.points[i].segment)] == region)
+      if (traj.points[i].kind == MoveKind::grind && traj.region_of(traj.points[i]) == region)
         return i;
     return traj.points.size();
   }
   std::size_t last_grind_of(const std::string& region) const {
     for (std::size_t i = traj.points.size(); i-- > 0;)
-      if (traj.points[i].kind == MoveKind::grind &&
-          traj.segment_regions[static_cast<std::size_t>(traj.points[i].segment)] == region)
+      if (traj.points[i].kind == MoveKind::grind && traj.region_of(traj.points[i]) == region)
         return i;
     return traj.points.size();
   }
@@ -145,12 +143,7 @@ TEST(Validate, AHostileRecipeIsRefused) {
 TEST(ValidateLimits, AHostileTrajectoryIsRefusedAtThePointThatBreaksTheCellLimits) {
   auto p = planned();
   ASSERT_FALSE(p.traj.points.empty());
-  config::SafetySection safety;
-  safety.workspace_min_mm = {-1000.0, -1000.0, -100.0};
-  safety.workspace_max_mm = {1000.0, 1000.0, 1200.0};
-  safety.tool_axis_cone_deg = 60.0;
-  safety.max_speed_mm_s = 250.0;
-  safety.max_spindle_rpm = 12000.0;
+  const config::SafetySection safety;  // the shipped defaults; the edits below cross them
   const auto limits = PlannerSettings::from(safety);
   ASSERT_TRUE(validate_limits(p.traj, limits)) << validate_limits(p.traj, limits).error().message;
 
@@ -163,21 +156,21 @@ TEST(ValidateLimits, AHostileTrajectoryIsRefusedAtThePointThatBreaksTheCellLimit
     edit(t.points[i]);
     expect_rejected(validate_limits(t, limits), rule, "riser", i);
   };
-  refused("workspace", g, [](TrajectoryPoint& q) { q.T_base_tool.position_mm.z() = -500.0; });
-  refused("workspace", a, [](TrajectoryPoint& q) { q.T_base_tool.position_mm.y() = 1000.5; });
+  refused("workspace", g, [&](TrajectoryPoint& q) { q.T_base_tool.position_mm.z() = safety.workspace_min_mm[2] - 400.0; });
+  refused("workspace", a, [&](TrajectoryPoint& q) { q.T_base_tool.position_mm.y() = safety.workspace_max_mm[1] + 0.5; });
   refused("finite", g, [&](TrajectoryPoint& q) { q.T_base_tool.position_mm.x() = nan; });
   refused("finite", g, [](TrajectoryPoint& q) { q.T_base_tool.orientation.coeffs() *= 2.0; });
   refused("tool_axis_cone", g, [](TrajectoryPoint& q) {
     q.T_base_tool.orientation = Quat(Eigen::AngleAxisd(deg_to_rad(180.0), Vec3::UnitX()));  // tool pointing up
   });
-  refused("speed", g, [](TrajectoryPoint& q) { q.speed_mm_s = 250.5; });
+  refused("speed", g, [&](TrajectoryPoint& q) { q.speed_mm_s = safety.max_speed_mm_s + 0.5; });
   refused("speed", a, [&](TrajectoryPoint& q) { q.speed_mm_s = nan; });
   refused("speed", a, [](TrajectoryPoint& q) { q.speed_mm_s = 0.0; });
-  refused("speed", g, [](TrajectoryPoint& q) { q.spindle_rpm = 12001.0; });
+  refused("speed", g, [&](TrajectoryPoint& q) { q.spindle_rpm = safety.max_spindle_rpm + 1.0; });
   refused("speed", a, [&](TrajectoryPoint& q) { q.spindle_rpm = nan; });  // passed the old check off a grind move
   refused("speed", a, [](TrajectoryPoint& q) { q.spindle_rpm = -1.0; });
   // The cell's limits, not the planner's defaults: a tighter [safety] refuses the same trajectory.
-  config::SafetySection tight = safety;
+  config::SafetySection tight;
   tight.max_speed_mm_s = 1.0;
   const auto st = validate_limits(p.traj, PlannerSettings::from(tight));
   ASSERT_FALSE(st);

@@ -21,6 +21,13 @@ struct Trajectory {
   std::string part_id;
   std::vector<std::string> segment_regions;  ///< segment id -> region name
   std::vector<TrajectoryPoint> points;
+
+  /// The region `p` belongs to through its segment, or `none` when segment_regions has no entry.
+  [[nodiscard]] std::string region_of(const TrajectoryPoint& p, const std::string& none = {}) const {
+    return p.segment >= 0 && static_cast<std::size_t>(p.segment) < segment_regions.size()
+               ? segment_regions[static_cast<std::size_t>(p.segment)]
+               : none;
+  }
 };
 
 }  // namespace fettle
