@@ -44,7 +44,7 @@ int evaluate_cmd(const Args& a) {
       opt.noise_seed = a.seeds[i];
       auto runs = grind_by_region(c, t, recipe, opt, {}, limits, app::progress_printer());
       if (!runs) throw fettle::UserError(a.trajectories[i].string() + ": " + runs.error().message);
-      for (const auto& run : *runs) gouges.insert(gouges.end(), run.result.gouges.begin(), run.result.gouges.end());
+      gouges = runs->total.gouges;
     } else if (a.perfect) {
       // Oracle: all flash and riser material removed exactly (no tool), to see the floor
       // the scanner's noise alone sets on the counts.

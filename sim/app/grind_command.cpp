@@ -38,57 +38,45 @@ int grind_cmd(const Args& a) {
   opt.path_bias_mm = fettle::Vec3(a.bias_mm[0], a.bias_mm[1], a.bias_mm[2]);
   opt.noise_seed = a.seed;
   const auto t0 = std::chrono::steady_clock::now();
-  const auto before = casting.material();
-  auto runs = grind_by_region(casting, trajectory, recipe, opt, a.tool, limits, app::progress_printer());
-  if (!runs) throw fettle::UserError(a.trajectory.string() + ": " + runs.error().message);
-  const auto after = casting.material();
-  std::size_t poses = 0;
-  std::vector<Gouge> gouges;
-  double deepest = 0.0;
+  auto ground = grind_by_region(casting, trajectory, recipe, opt, a.tool, limits, app::progress_printer());
+  if (!ground) throw fettle::UserError(a.trajectory.string() + ": " + ground.error().message);
+  const GrindResult& res = ground->total;
   std::printf("%-20s %-12s %10s %8s %14s\n", "run (region)", "tool", "poses", "gouges", "max depth mm");
-  for (const auto& run : *runs) {
-    poses += run.result.poses;
-    for (auto g : run.result.gouges) {
-      g.pose_index += poses - run.result.poses;  // index into the whole trajectory's poses
-      gouges.push_back(g);
-    }
-    deepest = std::max(deepest, run.result.max_gouge_depth_mm());
+  for (const auto& run : ground->runs)
     std::printf("%-20s %-12s %10zu %8zu %14.3f\n", run.region.empty() ? "(none)" : run.region.c_str(), run.tool.c_str(),
                 run.result.poses, run.result.gouges.size(), run.result.max_gouge_depth_mm());
-  }
-  std::printf("executed %zu interpolated poses in %zu run(s) in %.2f s\n", poses, runs->size(), app::seconds_since(t0));
-  double removed = 0.0;
+  std::printf("executed %zu interpolated poses in %zu run(s) in %.2f s\n", res.poses, ground->runs.size(),
+              app::seconds_since(t0));
   std::printf("%-20s %14s %14s %14s\n", "region", "before mm3", "after mm3", "max height mm");
-  for (std::size_t i = 0; i < before.size(); ++i) {
-    removed += before[i].volume_mm3 - after[i].volume_mm3;
-    std::printf("%-20s %14.1f %14.1f %14.2f\n", before[i].name.c_str(), before[i].volume_mm3, after[i].volume_mm3,
-                after[i].max_height_mm);
-  }
-  std::printf("removed %.1f mm3; gouges: %zu, max depth %.3f mm\n", removed, gouges.size(), deepest);
+  for (std::size_t i = 0; i < res.before.size(); ++i)
+    std::printf("%-20s %14.1f %14.1f %14.2f\n", res.before[i].name.c_str(), res.before[i].volume_mm3,
+                res.after[i].volume_mm3, res.after[i].max_height_mm);
+  std::printf("removed %.1f mm3; gouges: %zu, max depth %.3f mm\n", res.removed_mm3(), res.gouges.size(),
+              res.max_gouge_depth_mm());
   if (!a.out.empty()) {
     std::filesystem::create_directories(a.out);
     nlohmann::ordered_json j;
     j["part_id"] = recipe.id;
     j["seed"] = a.seed;
-    auto tools = nlohmann::ordered_json::array();
-    for (const auto& run : *runs) tools.push_back({{"region", run.region}, {"tool", run.tool}, {"poses", run.result.poses}});
-    j["runs"] = tools;
-    j["tool"] = runs->empty() ? std::string() : runs->front().tool;
-    j["poses"] = poses;
-    j["removed_mm3"] = removed;
+    auto runs = nlohmann::ordered_json::array();
+    for (const auto& run : ground->runs) runs.push_back({{"region", run.region}, {"tool", run.tool}, {"poses", run.result.poses}});
+    j["runs"] = runs;
+    j["tool"] = ground->runs.empty() ? std::string() : ground->runs.front().tool;
+    j["poses"] = res.poses;
+    j["removed_mm3"] = res.removed_mm3();
     auto regions = nlohmann::ordered_json::array();
-    for (std::size_t i = 0; i < before.size(); ++i)
-      regions.push_back({{"name", before[i].name},
-                         {"volume_before_mm3", before[i].volume_mm3},
-                         {"volume_after_mm3", after[i].volume_mm3},
-                         {"max_height_after_mm", after[i].max_height_mm}});
+    for (std::size_t i = 0; i < res.before.size(); ++i)
+      regions.push_back({{"name", res.before[i].name},
+                         {"volume_before_mm3", res.before[i].volume_mm3},
+                         {"volume_after_mm3", res.after[i].volume_mm3},
+                         {"max_height_after_mm", res.after[i].max_height_mm}});
     j["regions"] = regions;
-    auto gouge_list = nlohmann::ordered_json::array();
-    for (const auto& g : gouges)
-      gouge_list.push_back({{"position_mm", {g.position_mm.x(), g.position_mm.y(), g.position_mm.z()}},
-                            {"depth_mm", g.depth_mm},
-                            {"pose_index", g.pose_index}});
-    j["gouges"] = gouge_list;
+    auto gouges = nlohmann::ordered_json::array();
+    for (const auto& g : res.gouges)
+      gouges.push_back({{"position_mm", {g.position_mm.x(), g.position_mm.y(), g.position_mm.z()}},
+                        {"depth_mm", g.depth_mm},
+                        {"pose_index", g.pose_index}});
+    j["gouges"] = gouges;
     if (auto s = fettle::write_file_atomic(a.out / "grind.json", j.dump(2) + "\n"); !s)
       throw fettle::UserError(s.error().message);
     if (a.rescan) {

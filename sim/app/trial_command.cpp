@@ -241,7 +241,7 @@ int trial(const Args& a) {
       sj["error"] = runs.error().message;
       grind_failed = true;
     } else {
-      for (const auto& run : *runs)
+      for (const auto& run : runs->runs)
         for (const auto& gg : run.result.gouges) {
           gouges_by_region[run.region].push_back(gg);
           gouges.push_back(gg);

@@ -2,6 +2,7 @@
 // swept volume removes material (dexels) and cuts the body from the top; cuts into the
 // golden body deeper than the threshold are gouges.
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 
@@ -134,8 +135,9 @@ void for_cells_above(const TileMax& tiles, int i0, int i1, int j0, int j1, doubl
 /// outward, turned about the tool axis (tool frame). A cylinder: its end face from the centre to
 /// the rim, then its side; a cone: its side. Balls need none (the centre distance is exact).
 struct ToolProfile {
-  std::vector<Eigen::Vector2d> nodes;
+  std::vector<Eigen::Vector2d> nodes;  ///< at most kMaxNodes
   static constexpr int kAngles = 24;
+  static constexpr std::size_t kMaxNodes = 8;
 
   /// The surface point at profile parameter t (node index, fractional between nodes) and angle a.
   [[nodiscard]] Vec3 point(double t, double a) const {
@@ -180,10 +182,15 @@ std::pair<double, Vec3> deepest_point(const ToolProfile& prof, Depth&& at, ToPar
     const Vec3 q = to_part(prof.point(t, a));
     const double d = at(q);
     if (d > best) best = d, bt = t, ba = a, where = q;
+    return d;
   };
+  // the deepest angle of each node, for a point node's search below
+  std::array<double, ToolProfile::kMaxNodes> node_depth, node_angle{};
+  node_depth.fill(-std::numeric_limits<double>::infinity());
   for (std::size_t i = 0; i < prof.nodes.size(); ++i) {
     const int n = prof.nodes[i].x() <= 1e-9 ? 1 : ToolProfile::kAngles;
-    for (int k = 0; k < n; ++k) visit(static_cast<double>(i), k * da);
+    for (int k = 0; k < n; ++k)
+      if (const double d = visit(static_cast<double>(i), k * da); d > node_depth[i]) node_depth[i] = d, node_angle[i] = k * da;
   }
   const auto node = static_cast<std::size_t>(bt);
   double a_profile = ba;
@@ -193,12 +200,7 @@ std::pair<double, Vec3> deepest_point(const ToolProfile& prof, Depth&& at, ToPar
       if (s != 0) visit(t0, a0 + s * da / 8);
     a_profile = ba;
   } else if (node + 1 < prof.nodes.size()) {
-    // a point node has no angle of its own: take the next node's deepest direction
-    double deepest_next = -std::numeric_limits<double>::infinity();
-    for (int k = 0; k < ToolProfile::kAngles; ++k) {
-      const double d = at(to_part(prof.point(static_cast<double>(node + 1), k * da)));
-      if (d > deepest_next) deepest_next = d, a_profile = k * da;
-    }
+    a_profile = node_angle[node + 1];  // a point node has no angle of its own: the next node's deepest
   }
   const double t0 = bt;
   const double last = static_cast<double>(prof.nodes.size() - 1);
@@ -224,27 +226,21 @@ double GrindResult::max_gouge_depth_mm() const {
   return d;
 }
 
-Result<std::vector<RegionGrind>> grind_by_region(Casting& casting, const Trajectory& trajectory,
-                                                 const config::PartRecipe& recipe, const GrindOptions& base,
-                                                 const std::string& tool, const CellLimits& limits,
-                                                 const Progress& progress) {
+Result<PlannedGrind> grind_by_region(Casting& casting, const Trajectory& trajectory, const config::PartRecipe& recipe,
+                                     const GrindOptions& base, const std::string& tool, const CellLimits& limits,
+                                     const Progress& progress) {
   if (recipe.tools.empty()) return Error{"sim.no_tool", recipe.source.string() + ": the recipe has no tools"};
   const auto& pts = trajectory.points;
-  auto region_of = [&](std::size_t k) -> std::string {
-    const int s = pts[k].segment;
-    return s >= 0 && static_cast<std::size_t>(s) < trajectory.segment_regions.size()
-               ? trajectory.segment_regions[static_cast<std::size_t>(s)]
-               : std::string();
-  };
-  std::vector<RegionGrind> runs;
+  PlannedGrind out;
+  out.total.before = casting.material();
   std::size_t i = 0;
   while (i < pts.size()) {
     RegionGrind run;
-    run.region = region_of(i);
+    run.region = trajectory.region_of(pts[i]);
     Trajectory sub;
     sub.part_id = trajectory.part_id;
     sub.segment_regions = trajectory.segment_regions;
-    while (i < pts.size() && region_of(i) == run.region) sub.points.push_back(pts[i++]);
+    while (i < pts.size() && trajectory.region_of(pts[i]) == run.region) sub.points.push_back(pts[i++]);
     run.tool = tool;
     if (run.tool.empty()) {
       for (const auto& r : recipe.regions)
@@ -261,10 +257,16 @@ Result<std::vector<RegionGrind>> grind_by_region(Casting& casting, const Traject
     auto g = grind(casting, sub, go, limits, progress);
     if (!g) return Error{g.error().code, "grinding " + (run.region.empty() ? std::string("the trajectory") : run.region) +
                                              ": " + g.error().message};
+    for (auto gouge : g->gouges) {
+      gouge.pose_index += out.total.poses;  // an index into all the runs' poses
+      out.total.gouges.push_back(gouge);
+    }
+    out.total.poses += g->poses;
     run.result = std::move(*g);
-    runs.push_back(std::move(run));
+    out.runs.push_back(std::move(run));
   }
-  return runs;
+  out.total.after = casting.material();
+  return out;
 }
 
 const config::Tool& find_tool(const config::PartRecipe& recipe, const std::string& name) {

@@ -308,16 +308,23 @@ struct RegionGrind {
   GrindResult result;
 };
 
+/// A planned trajectory ground run by run.
+struct PlannedGrind {
+  std::vector<RegionGrind> runs;
+  /// All runs together: the material before the first and after the last, the poses summed,
+  /// the gouges with pose_index counting all the runs' poses.
+  GrindResult total;
+};
+
 /// Grinds a planned trajectory run by run: each run of consecutive points of one region (by
 /// its segment's entry in segment_regions) with that region's tool from the recipe, or every
 /// run with `tool` when it is not empty; a trajectory without region names is one run with the
 /// recipe's first tool. A run's path noise is seeded from base.noise_seed and the index of
 /// the point after the run, so it does not depend on the other runs. Stops at the first
 /// error (naming the region). base.tool is ignored.
-Result<std::vector<RegionGrind>> grind_by_region(Casting& casting, const Trajectory& trajectory,
-                                                 const config::PartRecipe& recipe, const GrindOptions& base,
-                                                 const std::string& tool = {}, const CellLimits& limits = {},
-                                                 const Progress& progress = {});
+Result<PlannedGrind> grind_by_region(Casting& casting, const Trajectory& trajectory, const config::PartRecipe& recipe,
+                                     const GrindOptions& base, const std::string& tool = {}, const CellLimits& limits = {},
+                                     const Progress& progress = {});
 
 /// Tool by name from the recipe (throws UserError if absent).
 const config::Tool& find_tool(const config::PartRecipe& recipe, const std::string& name);
