@@ -691,27 +691,23 @@ class Soak {
     } else if (fatal.empty()) {
       problems_.push_back("too few cycles after the warm-up (" + std::to_string(warm) + ") to judge memory");
     }
-    std::map<std::string, int> by_fault, by_result;
-    int faults_injected = 0, faults_reported = 0;
-    for (const auto& o : outcomes_) {
-      if (!o.fault.empty() && o.not_injected.empty()) {
-        ++faults_injected;
-        ++by_fault[o.device + ": " + o.fault];
-        if (o.expected_codes.count(o.plc_fault_code) != 0) ++faults_reported;
-      }
-      ++by_result[o.plc_fault_code ? "fault " + std::to_string(o.plc_fault_code) : "result " + o.plc_result];
-    }
     // The soak must have tested what it claims: every device drawn 10 times or more had a fault
     // injected and reported; and few drawn faults found nothing to act on.
-    std::map<std::string, int> reached_by_device, drawn_by_device;
+    std::map<std::string, int> by_fault, by_result, reached_by_device, drawn_by_device;
     for (const auto& k : fault_kinds()) reached_by_device[k.device], drawn_by_device[k.device];
-    int drawn = 0, not_injected = 0;
+    int drawn = 0, not_injected = 0, faults_injected = 0, faults_reported = 0;
     for (const auto& o : outcomes_) {
+      ++by_result[o.plc_fault_code ? "fault " + std::to_string(o.plc_fault_code) : "result " + o.plc_result];
       if (o.fault.empty()) continue;
       ++drawn;
       ++drawn_by_device[o.device];
-      if (!o.not_injected.empty()) ++not_injected;
-      else if (o.expected_codes.count(o.plc_fault_code) != 0) ++reached_by_device[o.device];
+      if (!o.not_injected.empty()) {
+        ++not_injected;
+        continue;
+      }
+      ++faults_injected;
+      ++by_fault[o.device + ": " + o.fault];
+      if (o.expected_codes.count(o.plc_fault_code) != 0) ++faults_reported, ++reached_by_device[o.device];
     }
     for (const auto& [device, reached] : reached_by_device)
       if (drawn_by_device[device] >= 10 && reached == 0)
