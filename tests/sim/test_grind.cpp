@@ -59,25 +59,37 @@ TEST(SimGrind, CylinderAboveTheFaceLeavesExactlyTheStubBelowIt) {
   EXPECT_NEAR(c.surface_z_mm(f.center_mm[0], f.center_mm[1]), face + 2.0, 0.02);
 }
 
+/// A ball-12 pass along the straight flash `clearance_mm` above the golden face (the TCP at
+/// the ball's tip), ground with `o` (tool set here, no path noise).
+fettle::Result<GrindResult> straight_pass(Casting& c, GrindOptions o, double* length_mm = nullptr, double* face_mm = nullptr,
+                                          double clearance_mm = 0.0) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.straight_flashes.at(0);
+  const double L = 0.5 * (f.length_mm.min + f.length_mm.max);
+  const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
+  o.tool = find_tool(recipe, "ball-12");
+  o.path_noise_mm = 0.0;
+  fettle::Trajectory t;
+  for (double s : {-8.0, L + 8.0}) {
+    fettle::TrajectoryPoint q;
+    q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + clearance_mm);
+    q.speed_mm_s = 20;
+    q.spindle_rpm = 9000;
+    t.points.push_back(q);
+  }
+  if (length_mm != nullptr) *length_mm = L + 16.0;
+  if (face_mm != nullptr) *face_mm = face;
+  return grind(c, t, o);
+}
+
 TEST(SimGrind, BallSweepAlongTheStraightFlashRemovesItAndRecordsAGougeWhenTooLow) {
   const auto recipe = sim_test::pump_body();
   const auto& f = recipe.geometry.straight_flashes.at(0);
   const double L = 0.5 * (f.length_mm.min + f.length_mm.max);
   for (double clearance : {0.0, -0.3}) {
     Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
-    const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
-    GrindOptions o;
-    o.tool = find_tool(recipe, "ball-12");
-    o.path_noise_mm = 0.0;
-    fettle::Trajectory t;
-    for (double s : {-8.0, L + 8.0}) {
-      fettle::TrajectoryPoint q;
-      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + clearance);  // TCP at the ball's tip
-      q.speed_mm_s = 20;
-      q.spindle_rpm = 9000;
-      t.points.push_back(q);
-    }
-    auto res = grind(c, t, o);
+    double face = 0;
+    auto res = straight_pass(c, GrindOptions{}, nullptr, &face, clearance);
     ASSERT_TRUE(res.ok()) << res.error().message;
     double left = 0;
     for (const auto& r : res->after)
@@ -92,28 +104,6 @@ TEST(SimGrind, BallSweepAlongTheStraightFlashRemovesItAndRecordsAGougeWhenTooLow
       EXPECT_NEAR(c.surface_z_mm(f.start_mm[0] + L / 2, f.start_mm[1]), face - 0.3, 0.02);
     }
   }
-}
-
-/// A ball-12 pass along the straight flash at the golden face (the TCP at the ball's tip),
-/// ground with `o` (tool set here, no path noise).
-fettle::Result<GrindResult> straight_pass(Casting& c, GrindOptions o, double* length_mm = nullptr, double* face_mm = nullptr) {
-  const auto recipe = sim_test::pump_body();
-  const auto& f = recipe.geometry.straight_flashes.at(0);
-  const double L = 0.5 * (f.length_mm.min + f.length_mm.max);
-  const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
-  o.tool = find_tool(recipe, "ball-12");
-  o.path_noise_mm = 0.0;
-  fettle::Trajectory t;
-  for (double s : {-8.0, L + 8.0}) {
-    fettle::TrajectoryPoint q;
-    q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face);
-    q.speed_mm_s = 20;
-    q.spindle_rpm = 9000;
-    t.points.push_back(q);
-  }
-  if (length_mm != nullptr) *length_mm = L + 16.0;
-  if (face_mm != nullptr) *face_mm = face;
-  return grind(c, t, o);
 }
 
 TEST(SimGrind, ACalibrationBiasCutsThatDeepAndOnlyCutsBeyondTheThresholdAreGouges) {
