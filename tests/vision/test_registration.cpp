@@ -165,3 +165,109 @@ TEST(PreparedCloud, CacheRoundTripGivesTheSameRegistration) {
   EXPECT_FALSE(PreparedCloud::load(file).has_value());
   std::filesystem::remove(file);
 }
+
+namespace {
+
+/// A 50 x 50 mm pad, 10 mm high, sampled every 0.5 mm: its top (normal +z) and its four walls
+/// (outward normals), as a golden template has them. Fewer than 20000 points: the fitness
+/// counts every one of them.
+Cloud pad_template() {
+  Cloud c;
+  for (float x = -25; x <= 25; x += 0.5f)
+    for (float y = -25; y <= 25; y += 0.5f) {
+      c.points.emplace_back(x, y, 0.0f);
+      c.normals.emplace_back(Eigen::Vector3f::UnitZ());
+    }
+  for (float s = -25; s <= 25; s += 0.5f)
+    for (float z = -10; z < 0; z += 0.5f) {
+      c.points.emplace_back(s, -25.0f, z);
+      c.normals.emplace_back(-Eigen::Vector3f::UnitY());
+      c.points.emplace_back(s, 25.0f, z);
+      c.normals.emplace_back(Eigen::Vector3f::UnitY());
+      c.points.emplace_back(-25.0f, s, z);
+      c.normals.emplace_back(-Eigen::Vector3f::UnitX());
+      c.points.emplace_back(25.0f, s, z);
+      c.normals.emplace_back(Eigen::Vector3f::UnitX());
+    }
+  return c;
+}
+
+/// The pad as a camera above sees it: the top only (walls return nothing), without the disc
+/// of radius 12 mm at the centre; with `riser`, a riser 8 mm high stands on that disc (its top
+/// and its side are seen).
+Cloud pad_scene(bool riser) {
+  Cloud c;
+  for (float x = -25; x <= 25; x += 0.5f)
+    for (float y = -25; y <= 25; y += 0.5f) {
+      const bool on_disc = x * x + y * y < 12.0f * 12.0f;
+      if (!on_disc) c.points.emplace_back(x, y, 0.0f);
+      else if (riser) c.points.emplace_back(x, y, 8.0f);
+    }
+  if (riser)
+    for (int k = 0; k < 150; ++k)
+      for (float z = 0.5f; z < 8.0f; z += 0.5f) {
+        const double a = 2.0 * M_PI * k / 150.0;
+        c.points.emplace_back(static_cast<float>(12.0 * std::cos(a)), static_cast<float>(12.0 * std::sin(a)), z);
+      }
+  return c;
+}
+
+Registration fitness_at(const Cloud& scene, const Transform& T_scene_template, bool viewpoint, double covered_mm) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto templ = PreparedCloud::prepare(pad_template(), ps);
+  FineSettings fs;
+  fs.max_iterations = 0;  // measure the pose as given
+  fs.fitness_distance = 1.0;
+  if (viewpoint) fs.viewpoint = Eigen::Vector3f(0.0f, 0.0f, 600.0f);
+  fs.covered_mm = covered_mm;
+  const auto r = refine(templ, scene, T_scene_template, fs);
+  EXPECT_TRUE(r.ok()) << r.error().message;
+  return r.ok() ? *r : Registration{};
+}
+
+}  // namespace
+
+TEST(RegionFitness, CountsTheTemplateSurfaceTheCameraCouldSeeNotWallsOrThePadUnderARiser) {
+  const Cloud scene = pad_scene(true);
+  const double top = 101.0 * 101.0;
+  const double walls = 4.0 * 101.0 * 20.0;
+  const double disc = M_PI * 12.0 * 12.0 / 0.25;
+  // (Within the 1 mm inlier distance of the pad's edge and of the riser's foot, a few wall
+  // and pad points have inliers: the counts below allow for them.)
+  // Every template point counts: the walls and the pad under the riser are misses.
+  const auto plain = fitness_at(scene, Transform::Identity(), false, 0.0);
+  EXPECT_NEAR(plain.fitness, (top - disc) / (top + walls), 0.07);
+  EXPECT_EQ(plain.hidden, 0U);
+  // Seen from above: the walls face away from the camera and leave the count.
+  const auto facing = fitness_at(scene, Transform::Identity(), true, 0.0);
+  EXPECT_NEAR(facing.fitness, (top - disc) / top, 0.03);
+  EXPECT_EQ(static_cast<double>(facing.hidden), walls);
+  // The pad under the riser has the riser's top 8 mm above it: covered, not missed.
+  const auto covered = fitness_at(scene, Transform::Identity(), true, 40.0);
+  EXPECT_GT(covered.fitness, 0.99);
+  EXPECT_GT(static_cast<double>(covered.hidden), walls + 0.8 * disc);
+  EXPECT_LE(static_cast<double>(covered.hidden), walls + disc);
+  EXPECT_EQ(covered.inliers, facing.inliers);
+  // Reaching less far than the riser is high: the pad under it stays a miss (but for a rim
+  // beside the riser's side).
+  EXPECT_NEAR(fitness_at(scene, Transform::Identity(), true, 5.0).fitness, facing.fitness, 0.01);
+}
+
+TEST(RegionFitness, AHoleWithNothingAboveItOrAPoseSunkUnderTheSceneStaysAMiss) {
+  // The same pad with the disc missing and no riser: nothing stands above the hole.
+  const auto hole = fitness_at(pad_scene(false), Transform::Identity(), true, 40.0);
+  EXPECT_LT(hole.fitness, 0.86);
+  EXPECT_NEAR(hole.fitness, fitness_at(pad_scene(false), Transform::Identity(), true, 0.0).fitness, 1e-9);
+  // The template 5 mm under the scene's surface, where a strip of the scene (a fifth of the
+  // pad) also has points: every other top point has the scene above it, but at most half of
+  // the seen template may leave the count, so the strip's inliers cannot make a good fit.
+  Transform sunk = Transform::Identity();
+  sunk.translation().z() = -5.0;
+  Cloud scene = pad_scene(true);
+  for (float x = -25; x < -15; x += 0.5f)
+    for (float y = -25; y <= 25; y += 0.5f) scene.points.emplace_back(x, y, -5.0f);
+  const auto r = fitness_at(scene, sunk, true, 40.0);
+  EXPECT_GT(r.inliers, 0U);
+  EXPECT_LT(r.fitness, 0.5);
+}

@@ -7,6 +7,8 @@
 //
 // Seeds: FETTLE_ACCURACY_SEEDS (default 8; `make accuracy-vision` runs 50).
 //
+// FETTLE_ACCURACY_VERBOSE=1 prints every seed's region and whole-part errors.
+//
 // FETTLE_ACCURACY_GROUND=1 removes every bit of flash and riser first (an oracle grind): it
 // separates the pull of the material from the scanner's errors.
 //
@@ -117,6 +119,11 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
       const auto w = test::pose_error_at(r->whole.T_scene_template, capture.truth.T_base_part, Vec3(roi[0], roi[1], roi[2]));
       whole_mm[rr.name].push_back(w.translation);
       whole_deg[rr.name].push_back(fettle::rad_to_deg(w.rotation_rad));
+      if (std::getenv("FETTLE_ACCURACY_VERBOSE") != nullptr)
+        std::printf("seed %3d %-18s fitness %.3f (%zu hidden)  region %.4f mm %.4f deg  whole part %.4f mm %.4f deg "
+                    "(%d iterations%s)\n",
+                    seed, rr.name.c_str(), rr.registration.fitness, rr.registration.hidden, e.translation, deg, w.translation,
+                    fettle::rad_to_deg(w.rotation_rad), r->whole.iterations, r->whole.converged ? "" : ", not converged");
       const auto& truth = capture.truth.regions[i];
       if (truth.type == fettle::config::RegionType::riser && truth.volume_mm3 > 0)
         riser_volume_error.push_back((rr.excess.volume_mm3 - truth.volume_mm3) / truth.volume_mm3);

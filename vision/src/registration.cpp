@@ -198,10 +198,18 @@ std::optional<PreparedCloud> PreparedCloud::load(const std::filesystem::path& fi
 
 namespace {
 
+/// Which template points the reported fitness counts (FineSettings::viewpoint, covered_mm).
+struct Visibility {
+  std::optional<Eigen::Vector3f> viewpoint;
+  double max_view_angle_deg = 90.0;
+  double covered_mm = 0.0;
+};
+
 /// Fitness and RMSE on every `stride`-th template point (the scene is bucketed in a grid of
-/// cell `distance`: no search tree to build per call).
+/// cell `distance`: no search tree to build per call), over the points `vis` says a camera
+/// could have seen.
 Registration evaluate_strided(const Cloud& templ, const Cloud& scene, const Transform& T_scene_template, double distance,
-                              std::size_t stride) {
+                              std::size_t stride, const Visibility& vis = {}) {
   Registration r;
   r.T_scene_template = T_scene_template;
   if (templ.empty() || scene.empty() || !(distance > 0)) return r;
@@ -209,25 +217,60 @@ Registration evaluate_strided(const Cloud& templ, const Cloud& scene, const Tran
   const Eigen::Matrix3f R = T_scene_template.rotation().cast<float>();
   const Eigen::Vector3f t = T_scene_template.translation().cast<float>();
   const auto d2max = static_cast<float>(distance * distance);
+  const bool normals = templ.has_normals();
+  const bool facing = normals && vis.viewpoint.has_value();
+  const auto cos_view = static_cast<float>(std::cos(deg_to_rad(vis.max_view_angle_deg)));
+  const bool probe = normals && vis.covered_mm > distance;
+  Bounds box = probe ? bounds(scene) : Bounds{};
+  box.min.array() -= static_cast<float>(distance);
+  box.max.array() += static_cast<float>(distance);
+  const auto step = static_cast<float>(distance);
+  const auto reach = static_cast<float>(vis.covered_mm);
+  const auto in_box = [&](const Eigen::Vector3f& p) {
+    return (p.array() >= box.min.array()).all() && (p.array() <= box.max.array()).all();
+  };
   const int threads = detail::thread_count(0);
   std::vector<std::size_t> counts(static_cast<std::size_t>(threads), 0);
+  std::vector<std::size_t> away(static_cast<std::size_t>(threads), 0);
+  std::vector<std::size_t> covered(static_cast<std::size_t>(threads), 0);
   std::vector<double> sums(static_cast<std::size_t>(threads), 0.0);
   stride = std::max<std::size_t>(1, stride);
   const std::size_t n = (templ.size() + stride - 1) / stride;
   detail::parallel_for(n, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
     for (std::size_t k = b; k < e; ++k) {
-      const auto [j, d2] = grid.nearest(R * templ.points[k * stride] + t, d2max);
+      const Eigen::Vector3f q = R * templ.points[k * stride] + t;
+      const Eigen::Vector3f nq = normals ? Eigen::Vector3f(R * templ.normals[k * stride]) : Eigen::Vector3f::Zero();
+      if (facing && nq.dot((*vis.viewpoint - q).normalized()) < cos_view) {
+        ++away[th];
+        continue;
+      }
+      const auto [j, d2] = grid.nearest(q, d2max);
       if (j >= 0) {
         ++counts[th];
         sums[th] += d2;
+        continue;
+      }
+      if (!probe) continue;
+      for (float s = step; s <= reach; s += step) {
+        const Eigen::Vector3f p = q + s * nq;
+        if (!in_box(p)) break;
+        if (grid.nearest(p, d2max).first >= 0) {
+          ++covered[th];
+          break;
+        }
       }
     }
   });
+  std::size_t n_away = 0, n_covered = 0;
   for (std::size_t th = 0; th < counts.size(); ++th) {
     r.inliers += counts[th];
     r.rmse += sums[th];
+    n_away += away[th];
+    n_covered += covered[th];
   }
-  r.fitness = static_cast<double>(r.inliers) / static_cast<double>(n);
+  const std::size_t seen = n - n_away;
+  r.hidden = n_away + std::min(n_covered, seen / 2);
+  r.fitness = n > r.hidden ? static_cast<double>(r.inliers) / static_cast<double>(n - r.hidden) : 0.0;
   r.rmse = r.inliers > 0 ? std::sqrt(r.rmse / static_cast<double>(r.inliers)) : 0.0;
   return r;
 }
@@ -531,7 +574,8 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
   // Fitness on at most ~20000 template points (a sample of large templates is as telling).
   Registration r = evaluate_strided(T.fine, scene, T_template_scene.inverse(),
                                     settings.fitness_distance > 0 ? settings.fitness_distance : d_min,
-                                    T.fine.size() / 20000 + 1);
+                                    T.fine.size() / 20000 + 1,
+                                    Visibility{settings.viewpoint, settings.max_view_angle_deg, settings.covered_mm});
   r.iterations = it;
   r.converged = converged;
   return r;

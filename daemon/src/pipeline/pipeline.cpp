@@ -273,9 +273,9 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     m.excess_max_height_mm = rr.excess.max_height_mm;
     out.regions.push_back(m);
     if (!selected(options, region.name)) continue;
-    // A region whose own fine fit is weak (a big riser hides most of its pad: 0.51-0.55 on the
-    // simulated pump body) is planned on the whole part's pose; one below half of min_fitness
-    // (0.16 on the mirror-image part) or not registered at all fails the cycle.
+    // A region whose own fine fit is weak (below min_fitness: less of its visible template
+    // surface found than expected) is planned on the whole part's pose; one below half of
+    // min_fitness (0.16 on the mirror-image part) or not registered at all fails the cycle.
     const bool weak = !rr.ok() && rr.error->code == "vision.low_fitness" &&
                       rr.registration.fitness >= 0.5 * recipe.vision.min_fitness;
     if (!rr.ok() && !weak)

@@ -15,6 +15,7 @@ struct View {
 
 struct FuseSettings {
   double voxel_mm = 0.3;           ///< neighbourhood for averaging overlapping surfaces
+  double icp_voxel_mm = 1.0;       ///< the pairwise ICP runs on the views voxelized to this
   double icp_max_distance_mm = 2.0;
   int icp_max_iterations = 30;
   double min_fitness = 0.2;        ///< a pairwise refinement below this keeps the calibration guess
@@ -27,8 +28,10 @@ struct FusedCloud {
 };
 
 /// Each view starts at its calibration pose, is refined against the previous view (ICP on
-/// the overlap), the pairwise results are chained (T_0_i = T_0_{i-1} * T_{i-1}_i) and the
-/// clouds are merged; overlapping surfaces become one layer by neighbourhood averaging.
+/// the overlap, both views voxelized to icp_voxel_mm), the pairwise results are chained
+/// (T_0_i = T_0_{i-1} * T_{i-1}_i) and the clouds are merged; overlapping surfaces become one
+/// layer by neighbourhood averaging (each view is averaged to voxel_mm on its own first, then
+/// the views together: overlapping views weigh alike whatever their point density).
 Result<FusedCloud> fuse_views(const std::vector<View>& views, const FuseSettings& settings);
 
 }  // namespace fettle::vision

@@ -65,6 +65,9 @@ struct Registration {
   double fitness = 0.0;
   double rmse = 0.0;
   std::size_t inliers = 0;
+  /// Template points left out of `fitness`: facing away from the camera, or hidden under
+  /// material (FineSettings::viewpoint, covered_mm).
+  std::size_t hidden = 0;
   bool converged = false;
   int iterations = 0;
 };
@@ -104,6 +107,17 @@ struct FineSettings {
   /// outside, so this drops it without down-weighting the noisy grazing walls that fix the
   /// pose sideways (Tukey weights did, and cost 0.1 deg of yaw on the whole part).
   double trim_outside_mm = 0.0;
+  /// The reported fitness counts only the template points a camera could have seen (the rest
+  /// are counted in Registration::hidden):
+  /// - with a viewpoint (scene frame), not those whose outward normal turns more than
+  ///   `max_view_angle_deg` away from it (walls seen from above return nothing);
+  /// - with covered_mm > 0, not those with no scene point within the fitness distance but one
+  ///   along their outward normal within covered_mm: material stands on them (a riser covers
+  ///   a third of its pad). At most half of the template is left out this way, so a pose
+  ///   sunk into the scene cannot look good.
+  std::optional<Eigen::Vector3f> viewpoint;
+  double max_view_angle_deg = 75.0;
+  double covered_mm = 0.0;
   int threads = 0;
 };
 
