@@ -283,7 +283,12 @@ int trial(const Args& a) {
       t1[type].add(e1);
       t2[type].add(e2);
       double gmax = 0.0;
-      for (const auto& g : gouges_by_region[region.name]) gmax = std::max(gmax, g.depth_mm);
+      const Gouge* deepest = nullptr;
+      for (const auto& g : gouges_by_region[region.name])
+        if (g.depth_mm > gmax) {
+          gmax = g.depth_mm;
+          deepest = &g;
+        }
       seed_gouge = std::max(seed_gouge, gmax);
       seed_ok = seed_ok && pct(e1.over_0_5, e1.roi_points) <= kMaxShareOver05Pct &&
                 pct(e1.over_0_3, e1.roi_points) <= kMaxShareOver03Pct;
@@ -295,6 +300,8 @@ int trial(const Args& a) {
       rj["batch_consistency"] = region_eval_json(e2);
       rj["gouges"] = gouges_by_region[region.name].size();
       rj["max_gouge_depth_mm"] = gmax;
+      if (deepest != nullptr)  // where: part frame of the casting (its true pose)
+        rj["deepest_gouge_mm"] = {deepest->position_mm.x(), deepest->position_mm.y(), deepest->position_mm.z()};
       for (const auto& m : out->regions)
         if (m.name == region.name)
           rj["plan"] = {{"excess_points", m.excess_points},
