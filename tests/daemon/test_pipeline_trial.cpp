@@ -1,13 +1,18 @@
-// The closed loop on simulated castings (issue 5 acceptance, CI-sized): `fettle-sim trial`
-// on two seeds must keep, for every region type, <= 0.1 % of the ROI points > 0.5 mm and
-// <= 1 % > 0.3 mm from the template after one cycle, with no gouge deeper than 0.1 mm.
-// `make accuracy` runs the same on 50 seeds.
+// The closed loop on simulated castings: `fettle-sim trial` on one seed writes its evaluation
+// per region; on two seeds (issue 5 acceptance, CI-sized; disabled until met) it must keep, for
+// every region type, <= 0.1 % of the ROI points > 0.5 mm and <= 1 % > 0.3 mm from the template
+// after one cycle, with no gouge deeper than 0.1 mm. `make accuracy` runs the same on 50 seeds.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <vector>
+
+#include <sys/wait.h>
 
 #include <nlohmann/json.hpp>
 #include <unistd.h>
@@ -16,31 +21,90 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// DISABLED: the closed loop does not complete yet - the flange ring's plan is refused on the
-// simulated pump body (see test_pipeline.cpp); enable once `fettle-sim trial --seeds 1-2` passes.
-TEST(Trial, DISABLED_TwoSeedsMeetTheAcceptanceThresholds) {
-  const fs::path out = fs::temp_directory_path() / ("fettle-trial-" + std::to_string(::getpid()));
-  fs::remove_all(out);
+struct TrialRun {
+  fs::path out;
+  int rc = -1;
+  std::string log;
+  nlohmann::json summary;
+};
+
+/// Runs `fettle-sim trial` on seeds `seeds` ("A-B") of the pump body in the simulated cell.
+TrialRun run_trial(const std::string& seeds) {
+  TrialRun t;
+  t.out = fs::temp_directory_path() / ("fettle-trial-" + std::to_string(::getpid()));
+  fs::remove_all(t.out);
   const std::string cmd = std::string(FETTLE_BIN_DIR) + "/fettle-sim trial --part " + FETTLE_SOURCE_DIR +
-                          "/config/parts/pump-body.toml --cell " + FETTLE_SOURCE_DIR +
-                          "/config/cell.sim.toml --seeds 1-2 --out " + out.string() + " > " + (out.string() + ".log") +
-                          " 2>&1";
-  const int rc = std::system(cmd.c_str());
-  std::ifstream log(out.string() + ".log");
-  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
-  std::ifstream in(out / "summary.json");
-  ASSERT_TRUE(in) << "no summary.json; output:\n" << text;
-  const auto summary = nlohmann::json::parse(in);
+                          "/config/parts/pump-body.toml --cell " + FETTLE_SOURCE_DIR + "/config/cell.sim.toml --seeds " +
+                          seeds + " --out " + t.out.string() + " > " + (t.out.string() + ".log") + " 2>&1";
+  t.rc = std::system(cmd.c_str());
+  std::ifstream log(t.out.string() + ".log");
+  t.log.assign((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  std::ifstream in(t.out / "summary.json");
+  if (in) t.summary = nlohmann::json::parse(in);
+  return t;
+}
+
+void clean(const TrialRun& t) {
+  fs::remove_all(t.out);
+  fs::remove(t.out.string() + ".log");
+}
+
+TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
+  // Not the acceptance (that is the disabled test below): the closed loop runs, every region
+  // is planned and evaluated, and the numbers are where docs/planning.md says. A gouge deeper
+  // than 0.5 mm would be a regression (2026-12-02: 0.19 mm deepest on this seed).
+  const auto t = run_trial("1-1");
+  ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
+  EXPECT_TRUE(WIFEXITED(t.rc) && (WEXITSTATUS(t.rc) == 0 || WEXITSTATUS(t.rc) == 1)) << t.log;
+  EXPECT_EQ(t.summary.at("failures").get<int>(), 0) << t.log;
+  EXPECT_LT(t.summary.at("max_gouge_depth_mm").get<double>(), 0.5) << t.log;
+  std::ifstream in(t.out / "seed-1" / "evaluation.json");
+  ASSERT_TRUE(in) << t.log;
+  const auto e = nlohmann::json::parse(in);
+  ASSERT_EQ(e.at("regions").size(), 4U);
+  double deepest = 0.0;
+  for (const auto& r : e.at("regions")) {
+    const auto name = r.at("name").get<std::string>();
+    EXPECT_GT(r.at("plan").at("trajectory_points").get<long>(), 0) << name;
+    EXPECT_TRUE(r.contains("template_comparison")) << name;
+    const double depth = r.at("max_gouge_depth_mm").get<double>();
+    deepest = std::max(deepest, depth);
+    if (r.at("gouges").get<long>() == 0) {
+      EXPECT_FALSE(r.contains("deepest_gouge_mm")) << name;
+      continue;
+    }
+    ASSERT_TRUE(r.contains("deepest_gouge_mm")) << name;
+    const auto p = r.at("deepest_gouge_mm").get<std::vector<double>>();
+    ASSERT_EQ(p.size(), 3U) << name;
+    // on the part: the pump body spans x, y within +-110 / +-85 mm, z 0..65 (part frame)
+    EXPECT_LE(std::abs(p[0]), 110.5) << name;
+    EXPECT_LE(std::abs(p[1]), 85.5) << name;
+    EXPECT_GE(p[2], -0.5) << name;
+    EXPECT_LE(p[2], 65.5) << name;
+  }
+  EXPECT_DOUBLE_EQ(deepest, e.at("max_gouge_depth_mm").get<double>());
+  if (!HasFailure()) clean(t);
+}
+
+// DISABLED: the closed loop does not meet the acceptance yet (2026-12-02, seeds 1-4: gouges
+// 0.13-0.20 mm deep against 0.10 mm; see README, planning core). Enable once
+// `fettle-sim trial --seeds 1-2` passes.
+TEST(Trial, DISABLED_TwoSeedsMeetTheAcceptanceThresholds) {
+  const auto t = run_trial("1-2");
+  ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
+  const auto& summary = t.summary;
+  const std::string& text = t.log;
+  const fs::path& out = t.out;
   EXPECT_EQ(summary.at("failures").get<int>(), 0) << text;
   EXPECT_LE(summary.at("max_gouge_depth_mm").get<double>(), 0.1) << text;
   const auto& types = summary.at("template_comparison");
   for (const char* type : {"ring_flash", "riser", "circle_flash", "straight_flash"}) {
     ASSERT_TRUE(types.contains(type)) << type << "\n" << text;
-    const auto& t = types.at(type);
-    EXPECT_EQ(t.at("seeds").get<int>(), 2) << type;
-    EXPECT_GT(t.at("roi_points").get<long>(), 0) << type;
-    EXPECT_LE(t.at("worst_share_over_0_5_pct").get<double>(), 0.1) << type << "\n" << text;
-    EXPECT_LE(t.at("worst_share_over_0_3_pct").get<double>(), 1.0) << type << "\n" << text;
+    const auto& tt = types.at(type);
+    EXPECT_EQ(tt.at("seeds").get<int>(), 2) << type;
+    EXPECT_GT(tt.at("roi_points").get<long>(), 0) << type;
+    EXPECT_LE(tt.at("worst_share_over_0_5_pct").get<double>(), 0.1) << type << "\n" << text;
+    EXPECT_LE(tt.at("worst_share_over_0_3_pct").get<double>(), 1.0) << type << "\n" << text;
   }
   // per seed: the files anyone can recompute the figures from
   for (const char* seed : {"seed-1", "seed-2"}) {
@@ -48,9 +112,8 @@ TEST(Trial, DISABLED_TwoSeedsMeetTheAcceptanceThresholds) {
     EXPECT_TRUE(fs::exists(out / seed / "template.ply")) << seed;
     EXPECT_TRUE(fs::exists(out / seed / "roi_riser.ply")) << seed;
   }
-  EXPECT_EQ(rc, 0) << text;
-  fs::remove_all(out);
-  fs::remove(out.string() + ".log");
+  EXPECT_EQ(t.rc, 0) << text;
+  clean(t);
 }
 
 }  // namespace
