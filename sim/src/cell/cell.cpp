@@ -333,6 +333,17 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     });
   }
 
+  /// The recipe region whose ROI holds a part-frame point ("" when none does).
+  std::string region_at(const Vec3& x) const {
+    for (const auto& r : recipe.regions) {
+      bool inside = true;
+      for (std::size_t k = 0; k < 3; ++k)
+        inside = inside && std::abs(x[static_cast<int>(k)] - r.roi_center_mm[k]) <= 0.5 * r.roi_size_mm[k];
+      if (inside) return r.name;
+    }
+    return {};
+  }
+
   const config::Tool& tool_for_segment(const std::vector<TrajectoryPoint>& pts, const Transform& T_part_base) const {
     std::map<std::string, int> votes;
     for (const auto& p : pts) {
@@ -369,6 +380,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     limits.max_spindle_rpm = s.max_spindle_rpm;
     const Transform T_part_base = casting->T_base_part().inverse();
     double before = 0.0, after = 0.0, gouge = 0.0;
+    Vec3 gouge_at = Vec3::Zero();  // part frame
     for (const auto& r : casting->material()) before += r.volume_mm3;
     std::size_t i = 0;
     while (i < t.points.size()) {
@@ -382,7 +394,9 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       go.noise_seed = casting->seed() * 1000 + casting_version;
       auto r = sim::grind(*casting, seg, go, limits);
       if (!r) event("grinding segment " + std::to_string(t.points[i].segment) + " refused: " + r.error().message);
-      else gouge = std::max(gouge, r->max_gouge_depth_mm());
+      else
+        for (const auto& g : r->gouges)
+          if (g.depth_mm > gouge) gouge = g.depth_mm, gouge_at = g.position_mm;
       i = j;
     }
     std::string left;
@@ -395,10 +409,19 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     }
     ++casting_version;
     char buf[200];
-    std::snprintf(buf, sizeof buf, "ground %zu points: material %.0f -> %.0f mm3, deepest gouge %.2f mm (%.1f s)",
-                  t.points.size(), before, after, gouge,
-                  std::chrono::duration<double>(Clock::now() - t0).count());
-    event(std::string(buf) + "; left per region (volume / height): " + left);
+    std::snprintf(buf, sizeof buf, "ground %zu points: material %.0f -> %.0f mm3, deepest gouge %.2f mm", t.points.size(),
+                  before, after, gouge);
+    std::string where;
+    if (gouge > 0.0) {
+      // where, for whoever reads the cell log: the part-frame point and the region whose ROI holds it
+      char at[160];
+      std::snprintf(at, sizeof at, " at (%.1f, %.1f, %.1f) in the part frame%s%s", gouge_at.x(), gouge_at.y(), gouge_at.z(),
+                    region_at(gouge_at).empty() ? "" : ", ", region_at(gouge_at).c_str());
+      where = at;
+    }
+    char took[40];
+    std::snprintf(took, sizeof took, " (%.1f s)", std::chrono::duration<double>(Clock::now() - t0).count());
+    event(std::string(buf) + where + took + "; left per region (volume / height): " + left);
   }
 
   // ---- the automatic loop ----
