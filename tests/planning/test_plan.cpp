@@ -172,6 +172,33 @@ TEST(StraightPlan, PassesAlongTheFittedLineWithTheToolOnTheFaceNormal) {
   EXPECT_GT(xmax, -5.0 + 6.0);
 }
 
+TEST(StraightPlan, StrayExcessPointsAlongTheLineDoNotStretchThePasses) {
+  // The fin runs from x = -95 to -5; a few excess points 0.3 mm high lie on the same line at
+  // x = 30..35 (a lower-resolution scan's noise at the ROI's end made the passes of a demo cycle
+  // run 45 mm past the fin and gouge there).
+  auto scene = make_scene();
+  auto& in = scene.inputs[3];
+  const std::size_t fin_points = in.excess_points_part.size();
+  std::size_t stray = 0;
+  for (double x = 30.0; x <= 35.0; x += 0.5, ++stray) in.excess_points_part.emplace_back(x, -70.0, 35.3);
+  ASSERT_LT(stray * 10, fin_points);
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  double xmax = -1e9;
+  for (const auto& p : plan->points)
+    if (p.kind == MoveKind::grind) xmax = std::max(xmax, p.T_base_tool.position_mm.x());
+  EXPECT_GT(xmax, -5.0 + 6.0);
+  EXPECT_LT(xmax, -5.0 + 6.0 + PlannerSettings{}.lead_mm + 1.0);  // the fin's end, the tool radius, the lead
+  // A second piece as long as the fin is flash too: the passes cover both.
+  for (double x = 30.0; x <= 120.0; x += 0.5) in.excess_points_part.emplace_back(x, -70.0, 36.0);
+  const auto both = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(both) << both.error().message;
+  xmax = -1e9;
+  for (const auto& p : both->points)
+    if (p.kind == MoveKind::grind) xmax = std::max(xmax, p.T_base_tool.position_mm.x());
+  EXPECT_GT(xmax, 120.0 + 6.0);
+}
+
 RegionPlan line_plan(const std::string& name, double x) {
   RegionPlan p;
   p.region = name;

@@ -44,6 +44,10 @@ struct PlannerSettings {
   double lead_mm = 5.0;             ///< lead-in / lead-out length of flash loops and passes
   double max_backoff_mm = 10.0;     ///< how far a pose may back off to avoid a gouge
   double flash_band_mm = 2.0;       ///< inlier band of the flash ellipse / line fits (flash width)
+  /// A straight flash's line inliers more than this apart along the line are separate pieces;
+  /// the passes run over the pieces holding at least a tenth of the inliers (stray excess points
+  /// along the line, e.g. at the ROI's end, do not stretch them)
+  double flash_gap_mm = 5.0;
   RansacOptions ransac{};
   static PlannerSettings from(const config::SafetySection& safety);
 };
