@@ -418,7 +418,8 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
   t.normalize();
   // The flash along the line: its inliers by position along it, split into pieces at gaps
   // longer than flash_gap_mm; the passes run from the first to the last piece holding at least
-  // a tenth of the inliers, and only those points set the height.
+  // a tenth of the inliers, and every excess point within that stretch sets the height (also
+  // those off the line's band: a tall or wavy fin).
   std::vector<std::pair<double, std::size_t>> along;
   for (std::size_t k = 0; k < pts.size(); ++k)
     if (line->distance(pts[k]) <= opts.inlier_mm) along.emplace_back((pts[k] - frame->base).dot(t), k);
@@ -429,18 +430,14 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
     if (k == 0 || along[k].first - along[k - 1].first > settings.flash_gap_mm) pieces.emplace_back(k, k);
     else pieces.back().second = k;
   const std::size_t keep = std::max<std::size_t>(1, along.size() / 10);
-  std::vector<double> heights;
   double smin = 1e300, smax = -1e300;
-  for (const auto& [first, last] : pieces) {
-    if (last - first + 1 < keep) continue;
-    smin = std::min(smin, along[first].first), smax = std::max(smax, along[last].first);
-    for (std::size_t k = first; k <= last; ++k) heights.push_back(in.template_sdf(pts[along[k].second]));
-  }
-  if (heights.empty())  // no piece holds a tenth: all of them
-    for (const auto& [s, k] : along) {
-      smin = std::min(smin, s), smax = std::max(smax, s);
-      heights.push_back(in.template_sdf(pts[k]));
-    }
+  for (const auto& [first, last] : pieces)
+    if (last - first + 1 >= keep) smin = std::min(smin, along[first].first), smax = std::max(smax, along[last].first);
+  if (smin > smax) smin = along.front().first, smax = along.back().first;  // no piece holds a tenth: all of them
+  std::vector<double> heights;
+  for (const auto& p : pts)
+    if (const double s = (p - frame->base).dot(t); s >= smin - 1e-9 && s <= smax + 1e-9)
+      heights.push_back(in.template_sdf(p));
   plan.max_excess_mm = *std::max_element(heights.begin(), heights.end());
   if (plan.max_excess_mm <= region.allowance_mm) return plan;
   const int passes = std::max(1, region.passes);

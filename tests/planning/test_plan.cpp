@@ -189,6 +189,14 @@ TEST(StraightPlan, StrayExcessPointsAlongTheLineDoNotStretchThePasses) {
     if (p.kind == MoveKind::grind) xmax = std::max(xmax, p.T_base_tool.position_mm.x());
   EXPECT_GT(xmax, -5.0 + 6.0);
   EXPECT_LT(xmax, -5.0 + 6.0 + PlannerSettings{}.lead_mm + 1.0);  // the fin's end, the tool radius, the lead
+  // Excess points within the fin's stretch but off the line's band (a taller spot of the fin)
+  // set the height too.
+  EXPECT_LT(plan->max_excess_mm, 2.5);
+  auto taller = in;
+  for (double x = -50.0; x <= -45.0; x += 0.5) taller.excess_points_part.emplace_back(x, -70.0, 39.5);
+  const auto tall = plan_region(taller, PlannerSettings{});
+  ASSERT_TRUE(tall) << tall.error().message;
+  EXPECT_NEAR(tall->max_excess_mm, 4.5, 0.05);
   // A second piece as long as the fin is flash too: the passes cover both.
   for (double x = 30.0; x <= 120.0; x += 0.5) in.excess_points_part.emplace_back(x, -70.0, 36.0);
   const auto both = plan_region(in, PlannerSettings{});
