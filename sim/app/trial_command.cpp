@@ -20,6 +20,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "fettle/config/roi.hpp"
 #include "fettle/core/atomic_file.hpp"
 #include "fettle/core/cli.hpp"
 #include "fettle/core/error.hpp"
@@ -108,13 +109,6 @@ EvalPoints eval_points(const fettle::config::PartRecipe& recipe, const std::vect
   cloud = fettle::vision::remove_statistical_outliers(cloud, recipe.vision.outlier_neighbours, recipe.vision.outlier_std_ratio);
   e.clean = std::move(cloud.points);
   return e;
-}
-
-bool in_roi(const fettle::config::Region& r, const Eigen::Vector3f& p) {
-  for (int k = 0; k < 3; ++k)
-    if (std::abs(p[k] - r.roi_center_mm[static_cast<std::size_t>(k)]) > 0.5 * r.roi_size_mm[static_cast<std::size_t>(k)])
-      return false;
-  return true;
 }
 
 double pct(std::size_t k, std::size_t n) { return n == 0 ? 0.0 : 100.0 * static_cast<double>(k) / static_cast<double>(n); }
@@ -320,7 +314,7 @@ int trial(const Args& a) {
       regions.push_back(rj);
       std::vector<Eigen::Vector3f> roi;
       for (const auto& p : pts.clean)
-        if (in_roi(region, p)) roi.push_back(p);
+        if (fettle::config::roi_contains(region, p)) roi.push_back(p);
       save_points(dir / ("roi_" + region.name + ".ply"), roi, casting.T_base_part());
     }
     max_gouge = std::max(max_gouge, seed_gouge);

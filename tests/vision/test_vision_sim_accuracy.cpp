@@ -30,6 +30,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -100,6 +101,11 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
     auto casting = fettle::sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
     if (std::getenv("FETTLE_ACCURACY_GROUND") != nullptr) casting.remove_all_material();
     const auto capture = scanner.capture(casting, 0.0);
+    std::optional<fettle::sim::Casting> body;  // FETTLE_ACCURACY_FORM: the casting without its material
+    if (std::getenv("FETTLE_ACCURACY_FORM") != nullptr) {
+      body = casting;
+      body->remove_all_material();
+    }
     const auto r = inspect(recipe, templ, capture.cloud, capture.truth.T_base_camera);
     if (!r) {
       ADD_FAILURE() << "seed " << seed << ": " << r.error().message;
@@ -131,18 +137,16 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
                     "(%d iterations%s)\n",
                     seed, rr.name.c_str(), rr.registration.fitness, rr.registration.hidden, e.translation, deg, w.translation,
                     fettle::rad_to_deg(w.rotation_rad), r->whole.iterations, r->whole.converged ? "" : ", not converged");
-      if (std::getenv("FETTLE_ACCURACY_FORM") != nullptr) {
+      if (body) {
         // RMS distance of the region's template points to the true body surface (all of them:
         // the walls show a slide sideways)
-        auto body = casting;
-        body.remove_all_material();
         const auto& fine = templ.regions()[i].cloud.fine();
         const auto rms = [&](const Transform& T_scene_region) {
           const Transform T_part_template = capture.truth.T_base_part.inverse() * T_scene_region;
           double sum = 0.0;
           std::size_t n = 0;
           for (std::size_t k = 0; k < fine.size(); k += 4) {
-            const double d = body.distance_to_surface_mm(T_part_template * fine.points[k].cast<double>());
+            const double d = body->distance_to_surface_mm(T_part_template * fine.points[k].cast<double>());
             sum += d * d;
             ++n;
           }

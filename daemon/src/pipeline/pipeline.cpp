@@ -11,6 +11,7 @@
 #include <system_error>
 
 #include "fettle/config/load.hpp"
+#include "fettle/config/roi.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/planning/sdf_grid.hpp"
@@ -98,14 +99,6 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
   timings.push_back({"vision", ms_since(t0)});
   if (!ins) return step_error("vision", ins.error());
   return ins;
-}
-
-Vec3 vec3(const std::array<double, 3>& a) { return {a[0], a[1], a[2]}; }
-
-bool in_roi(const config::Region& region, const Eigen::Vector3f& p) {
-  const Vec3 c = vec3(region.roi_center_mm), h = 0.5 * vec3(region.roi_size_mm);
-  const Vec3 q = p.cast<double>() - c;
-  return std::abs(q.x()) <= h.x() && std::abs(q.y()) <= h.y() && std::abs(q.z()) <= h.z();
 }
 
 bool selected(const ProcessOptions& options, const std::string& name) {
@@ -424,7 +417,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     std::vector<Eigen::Vector3f> pts;
     for (const auto& p : ins->scene_part.points) {
       const Eigen::Vector3f q = T * p;
-      if (in_roi(region, q)) pts.push_back(q);
+      if (config::roi_contains(region, q)) pts.push_back(q);
     }
     // Residuals on the planner's signed distance (golden samples with their normals, edges
     // handled): the voxel-averaged vision template blends the two normals at every edge and

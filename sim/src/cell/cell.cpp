@@ -20,6 +20,7 @@
 
 #include "fettle/config/calibration.hpp"
 #include "fettle/config/load.hpp"
+#include "fettle/config/roi.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/drivers/canopen_transport.hpp"
@@ -335,12 +336,8 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
 
   /// The recipe region whose ROI holds a part-frame point ("" when none does).
   std::string region_at(const Vec3& x) const {
-    for (const auto& r : recipe.regions) {
-      bool inside = true;
-      for (std::size_t k = 0; k < 3; ++k)
-        inside = inside && std::abs(x[static_cast<int>(k)] - r.roi_center_mm[k]) <= 0.5 * r.roi_size_mm[k];
-      if (inside) return r.name;
-    }
+    for (const auto& r : recipe.regions)
+      if (config::roi_contains(r, x)) return r.name;
     return {};
   }
 
@@ -348,14 +345,8 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     std::map<std::string, int> votes;
     for (const auto& p : pts) {
       const Vec3 x = T_part_base * p.T_base_tool.position_mm;
-      for (const auto& r : recipe.regions) {
-        bool inside = true;
-        for (int i = 0; i < 3; ++i) {
-          const auto k = static_cast<std::size_t>(i);
-          inside = inside && std::abs(x[i] - r.roi_center_mm[k]) <= 0.5 * r.roi_size_mm[k] + 5.0;
-        }
-        if (inside) ++votes[r.tool];
-      }
+      for (const auto& r : recipe.regions)
+        if (config::roi_contains(r, x, 5.0)) ++votes[r.tool];
     }
     std::string best;
     int n = -1;
@@ -414,9 +405,10 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     std::string where;
     if (gouge > 0.0) {
       // where, for whoever reads the cell log: the part-frame point and the region whose ROI holds it
+      const std::string region = region_at(gouge_at);
       char at[160];
       std::snprintf(at, sizeof at, " at (%.1f, %.1f, %.1f) in the part frame%s%s", gouge_at.x(), gouge_at.y(), gouge_at.z(),
-                    region_at(gouge_at).empty() ? "" : ", ", region_at(gouge_at).c_str());
+                    region.empty() ? "" : ", ", region.c_str());
       where = at;
     }
     char took[40];
