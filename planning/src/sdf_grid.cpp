@@ -23,7 +23,8 @@ constexpr int kBrickValues = kNodes * kNodes * kNodes;
 constexpr int kFlagWords = kCells * kCells * kCells / 64;
 constexpr double kScale = 2000.0;      ///< band level: int16 units per mm (0.5 µm steps, ±16.38 mm)
 constexpr double kFarScale = 500.0;    ///< far level: 2 µm steps, ±65.5 mm
-constexpr std::array<char, 8> kMagic{'F', 'T', 'L', 'S', 'D', 'F', 'G', '1'};
+/// The last byte is the file format's version (2: settings with kink_jump_mm).
+constexpr std::array<char, 8> kMagic{'F', 'T', 'L', 'S', 'D', 'F', 'G', '2'};
 
 std::uint64_t fnv1a(const void* data, std::size_t n, std::uint64_t h = 1469598103934665603ULL) {
   const auto* b = static_cast<const unsigned char*>(data);
@@ -35,7 +36,7 @@ std::uint64_t fnv1a(const void* data, std::size_t n, std::uint64_t h = 146959810
 
 namespace {
 
-enum class Lookup { value, exact, uncovered };
+enum class Lookup { value, kink, uncovered };
 
 /// One lattice: bricks of kCells³ cells over a box, allocated where the surface may be near.
 struct Level {
@@ -60,8 +61,6 @@ struct Level {
     const int cx = static_cast<int>(ix - bx * kCells), cy = static_cast<int>(iy - by * kCells),
               cz = static_cast<int>(iz - bz * kCells);
     const int cell = (cz * kCells + cy) * kCells + cx;
-    if ((flags[static_cast<std::size_t>(b) * kFlagWords + static_cast<std::size_t>(cell >> 6)] >> (cell & 63)) & 1U)
-      return Lookup::exact;
     const std::int16_t* v = values.data() + static_cast<std::size_t>(b) * kBrickValues + (cz * kNodes + cy) * kNodes + cx;
     const double tx = q.x() - fx, ty = q.y() - fy, tz = q.z() - fz;
     constexpr int dy = kNodes, dz = kNodes * kNodes;
@@ -71,8 +70,15 @@ struct Level {
     const double c11 = v[dz + dy] + tx * (v[dz + dy + 1] - v[dz + dy]);
     const double c0 = c00 + ty * (c10 - c00), c1 = c01 + ty * (c11 - c01);
     out = (c0 + tz * (c1 - c0)) / scale;
-    return Lookup::value;
+    const bool kink =
+        (flags[static_cast<std::size_t>(b) * kFlagWords + static_cast<std::size_t>(cell >> 6)] >> (cell & 63)) & 1U;
+    return kink ? Lookup::kink : Lookup::value;
   }
+
+  /// How far an interpolated value can be from the exact function anywhere in a cell: a
+  /// distance changes by at most the distance moved, so the trilinear blend of the corners is
+  /// within half the cell's diagonal, plus the sampled function's own jumps.
+  [[nodiscard]] double kink_bound(double jump_mm) const { return 0.5 * std::sqrt(3.0) * voxel + jump_mm; }
 
   [[nodiscard]] std::size_t memory() const {
     return values.size() * sizeof(std::int16_t) + flags.size() * sizeof(std::uint64_t) +
@@ -187,26 +193,33 @@ struct SdfGrid::Data {
   SdfGridSettings settings;
   SdfGridStats stats;
   SignedDistance exact;
-  std::array<Level, 2> levels;  ///< fine (the band), far (coarse, out to far_band_mm)
+  std::array<Level, 2> levels;  ///< band (fine), far (coarse, out to far_band_mm)
 
-  [[nodiscard]] double at(const Vec3& p) const {
-    double v = 0.0;
-    switch (levels[0].lattice(p, v)) {
-      case Lookup::value: return v;
-      case Lookup::exact: return exact(p);
-      case Lookup::uncovered: break;
-    }
-    return levels[1].lattice(p, v) == Lookup::value ? v : exact(p);
-  }
+  /// The first level covering p answers it: its interpolated value, or nullopt where that
+  /// cell is a kink (the exact function answers) or no level covers p.
   [[nodiscard]] std::optional<double> interpolated(const Vec3& p) const {
     double v = 0.0;
-    switch (levels[0].lattice(p, v)) {
-      case Lookup::value: return v;
-      case Lookup::exact: return std::nullopt;
-      case Lookup::uncovered: break;
-    }
-    if (levels[1].lattice(p, v) == Lookup::value) return v;
+    for (const auto& level : levels) switch (level.lattice(p, v)) {
+        case Lookup::value: return v;
+        case Lookup::kink: return std::nullopt;
+        case Lookup::uncovered: break;
+      }
     return std::nullopt;
+  }
+  [[nodiscard]] double at(const Vec3& p) const {
+    const auto v = interpolated(p);
+    return v ? *v : exact(p);
+  }
+  /// As at(), but a kink cell whose interpolated value is beyond near_mm by more than the
+  /// cell's bound answers with that value (the exact distance is beyond near_mm too).
+  [[nodiscard]] double near(const Vec3& p, double near_mm) const {
+    double v = 0.0;
+    for (const auto& level : levels) switch (level.lattice(p, v)) {
+        case Lookup::value: return v;
+        case Lookup::kink: return std::abs(v) > near_mm + level.kink_bound(settings.kink_jump_mm) ? v : exact(p);
+        case Lookup::uncovered: break;
+      }
+    return exact(p);
   }
   void update_stats() {
     stats.bricks = levels[0].values.size() / kBrickValues;
@@ -245,14 +258,15 @@ double SdfGrid::operator()(const Vec3& p) const { return data_->at(p); }
 std::optional<double> SdfGrid::interpolated(const Vec3& p) const { return data_->interpolated(p); }
 
 SignedDistance SdfGrid::function() const {
-  return [d = data_](const Vec3& p) { return d->at(p); };
+  return {[d = data_](const Vec3& p) { return d->at(p); },
+          [d = data_](const Vec3& p, double near_mm) { return d->near(p, near_mm); }};
 }
 
 const SdfGridStats& SdfGrid::stats() const { return data_->stats; }
 const SdfGridSettings& SdfGrid::settings() const { return data_->settings; }
 
 // --- cache file --------------------------------------------------------------------------------
-// magic, key, voxel, band, tol, origin xyz, nbx nby nbz, bricks, brick_of, values, flags,
+// magic (its last byte the format version), key, settings, per level (band, far): origin xyz, nbx nby nbz, bricks, brick_of, values, flags,
 // stats.exact_cells, checksum (FNV-1a of everything before it).
 
 namespace {
@@ -318,8 +332,11 @@ std::optional<SdfGrid> SdfGrid::load(const std::filesystem::path& file, std::uin
   std::ifstream in(file, std::ios::binary);
   if (!in) return fail("no cache file");
   const std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (s.size() < kMagic.size() + 2 * sizeof(std::uint64_t) || std::memcmp(s.data(), kMagic.data(), kMagic.size()) != 0)
+  if (s.size() < kMagic.size() + 2 * sizeof(std::uint64_t) || std::memcmp(s.data(), kMagic.data(), kMagic.size() - 1) != 0)
     return fail("not a signed-distance grid cache (bad magic)");
+  if (s[kMagic.size() - 1] != kMagic.back())
+    return fail(std::string("written in format version ") + s[kMagic.size() - 1] + ", this build reads version " +
+                kMagic.back());
   std::uint64_t stored_sum = 0;
   std::memcpy(&stored_sum, s.data() + s.size() - sizeof(stored_sum), sizeof(stored_sum));
   if (fnv1a(s.data(), s.size() - sizeof(stored_sum)) != stored_sum) return fail("corrupt (checksum mismatch)");

@@ -3,6 +3,7 @@
 // does not answer, and the on-disk cache (round trip, another key, corruption).
 #include <gtest/gtest.h>
 
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -141,6 +142,56 @@ TEST(SdfGrid, ATighterToleranceAnswersMoreCellsExactly) {
   EXPECT_LE(measure(b, 50000, 2).band_max, measure(a, 50000, 2).band_max + 1e-9);
 }
 
+// near(p, d): where the exact distance is within +-d it is the grid's answer (exact in kink
+// cells); farther, a kink cell may answer from the lattice, with the right sign, beyond d and
+// within the cell's bound (half its diagonal + kink_jump_mm) of the exact distance. Tool probes
+// ask it: the exact function in kink cells a few millimetres off the surface was most of the
+// planning time. The points keep 5 mm inside the sampled patches' open borders: beside an open
+// border the sampled function flips sign across the patch's plane (a jump no bound covers; a
+// golden seen from above is open only at the table, where no tool goes).
+TEST(SdfGrid, NearIsExactNearTheSurfaceAndBoundedBeyondIt) {
+  const auto& s = scene();
+  std::atomic<long> exact_calls{0};
+  const SignedDistance counted = [&](const Vec3& p) {
+    ++exact_calls;
+    return s.exact(p);
+  };
+  const auto grid = SdfGrid::build(counted, s.lo, s.hi, SdfGridSettings{});
+  const auto sdf = grid.function();
+  constexpr double kNear = 2.0;
+  const double bound = 0.5 * std::sqrt(3.0) * grid.settings().far_voxel_mm + grid.settings().kink_jump_mm;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> x(s.lo.x() + 5, s.hi.x() - 5), y(s.lo.y() + 5, s.hi.y() - 5),
+      z(s.lo.z() - 2, s.hi.z() + 25);
+  long by_at = 0, by_near = 0;
+  int lattice_answers = 0, far_points = 0;
+  for (int k = 0; k < 100000; ++k) {
+    const double pz = z(rng), py = y(rng), px = x(rng);
+    const Vec3 p(px, py, pz);
+    const double truth = s.exact(p);
+    exact_calls = 0;
+    const double full = sdf(p);
+    by_at += exact_calls;
+    exact_calls = 0;
+    const double v = sdf.near(p, kNear);
+    by_near += exact_calls;
+    if (std::abs(truth) <= kNear) {
+      ASSERT_EQ(v, full) << p.transpose();
+      continue;
+    }
+    ++far_points;
+    if (v == full) continue;  // the grid's own answer (interpolated, or exact in a kink cell)
+    ++lattice_answers;        // a kink cell answered from the lattice
+    ASSERT_EQ(v > 0, truth > 0) << p.transpose() << " near " << v << " operator() " << full << " exact " << truth;
+    ASSERT_GT(std::abs(v), kNear) << p.transpose();
+    ASSERT_LE(std::abs(v - truth), bound) << p.transpose();
+  }
+  std::printf("exact calls: %ld by operator(), %ld by near(p, %.0f); %d of %d points beyond it answered by the lattice\n",
+              by_at, by_near, kNear, lattice_answers, far_points);
+  EXPECT_GT(lattice_answers, 0);
+  EXPECT_LT(by_near, by_at);
+}
+
 TEST(SdfGrid, FarFromEverythingIsTheExactAnswer) {
   const auto grid = build_grid();
   EXPECT_EQ(grid(Vec3(0, 0, 500)), scene().exact(Vec3(0, 0, 500)));
@@ -216,6 +267,14 @@ TEST(SdfGridCache, ACorruptOrTruncatedFileIsNeverTrusted) {
   std::ofstream(file, std::ios::trunc) << "not a grid";
   EXPECT_FALSE(SdfGrid::load(file, 42, scene().exact, &why));
   EXPECT_NE(why.find("magic"), std::string::npos) << why;
+  {  // a grid of another format version (the last byte of the magic)
+    ASSERT_TRUE(grid.save(file, 42));
+    std::fstream f(file, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(7);
+    f.write("1", 1);
+  }
+  EXPECT_FALSE(SdfGrid::load(file, 42, scene().exact, &why));
+  EXPECT_NE(why.find("format version 1"), std::string::npos) << why;
   std::filesystem::remove(file);
   EXPECT_FALSE(SdfGrid::load(file, 42, scene().exact, &why));
   std::filesystem::remove_all(file.parent_path());

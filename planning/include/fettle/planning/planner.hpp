@@ -8,6 +8,7 @@
 // A ball tool's sphere centre is TCP + R·z; a cylinder tool occupies TCP + [0, length]·z with
 // radius R. See docs/planning.md.
 #include <functional>
+#include <type_traits>
 #include <string>
 #include <vector>
 
@@ -21,7 +22,33 @@
 namespace fettle::planning {
 
 /// Signed distance (mm) of a part-frame point to the template solid: > 0 outside, < 0 inside.
-using SignedDistance = std::function<double(const Vec3& p_part)>;
+/// Built from any callable double(const Vec3&); a provider that can answer cheaper far from the
+/// surface (the signed-distance grid) also gives near().
+class SignedDistance {
+ public:
+  using Fn = std::function<double(const Vec3& p_part)>;
+  /// near(p, near_mm): the signed distance where it is within ±near_mm; farther, any value of
+  /// the right sign whose size is the true distance's within a bound and beyond near_mm.
+  using NearFn = std::function<double(const Vec3& p_part, double near_mm)>;
+
+  SignedDistance() = default;
+  template <class F>
+    requires(std::is_invocable_r_v<double, const F&, const Vec3&> && !std::is_same_v<std::decay_t<F>, SignedDistance>)
+  SignedDistance(F f) : fn_(std::move(f)) {}  // NOLINT(google-explicit-constructor): any callable is one
+  SignedDistance(Fn fn, NearFn near) : fn_(std::move(fn)), near_(std::move(near)) {}
+
+  double operator()(const Vec3& p_part) const { return fn_(p_part); }
+  /// Exact (as operator()) wherever the distance is within ±near_mm. Tool probes ask this: a
+  /// probe farther from the template than any clearance cannot decide a penetration.
+  [[nodiscard]] double near(const Vec3& p_part, double near_mm) const {
+    return near_ ? near_(p_part, near_mm) : fn_(p_part);
+  }
+  explicit operator bool() const { return static_cast<bool>(fn_); }
+
+ private:
+  Fn fn_;
+  NearFn near_;
+};
 
 /// Everything the planner needs for one region (the daemon adapts the vision output to this).
 struct RegionInput {
@@ -126,7 +153,10 @@ Result<Trajectory> plan_part(const std::string& part_id, const std::vector<Regio
 Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
 
 /// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool; `deepest`, when
-/// given, receives the point of the tool (part frame) that goes deepest.
+/// given, receives the point of the tool (part frame) that goes deepest. A cylinder whose tip is
+/// more than its bounding radius plus 5 mm from the template gets that bound (negative: clear
+/// by at least this much) without probing its surface; its probes ask SignedDistance::near
+/// (exact within 2 mm of the template, where a penetration or a clearance is decided).
 double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
                            Vec3* deepest = nullptr);
 

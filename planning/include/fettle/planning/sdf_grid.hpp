@@ -12,9 +12,10 @@
 //
 // Two lattices: the band (fine, `voxel_mm`, where the surface may be within `band_mm`) and the
 // far field (coarse, `far_voxel_mm`, out to `far_band_mm`: tool probes in the air, level
-// searches high above a face). Each is made of bricks of 8×8×8 cells (9³ lattice values each,
-// int16, so every cell's eight corners are in one brick), allocated only where the brick may
-// lie within its band of the surface, with a dense table of brick indices over the box.
+// searches high above a face). The first lattice covering a point answers it. Each is made of
+// bricks of 8×8×8 cells (9³ lattice values each, int16, so every cell's eight corners are in
+// one brick), allocated only where the brick may lie within its band of the surface, with a
+// dense table of brick indices over the box.
 // See docs/planning.md.
 #include <cstdint>
 #include <filesystem>
@@ -36,6 +37,11 @@ struct SdfGridSettings {
   double far_voxel_mm = 2.0;   ///< far lattice spacing (beyond the band: tool probes in the air,
   double far_band_mm = 25.0;   ///< level searches), out to this distance from the surface
   double far_tol_mm = 0.1;     ///< far cells interpolated worse than this at their centre: exact
+  /// How far the exact function may jump within a cell (about a sample spacing off the sampled
+  /// patch): with half a cell's diagonal, the bound SignedDistance::near trusts a kink cell's
+  /// interpolated value within. Not a bound beside an open border of the samples (the sign
+  /// flips across the border's plane there): a golden seen from above is open at the table.
+  double kink_jump_mm = 1.0;
   int threads = 0;             ///< build threads (0: the hardware's)
 };
 
@@ -73,7 +79,9 @@ class SdfGrid {
   [[nodiscard]] double operator()(const Vec3& p) const;
   /// The lattice's answer only: nullopt where the exact function would be asked (tests).
   [[nodiscard]] std::optional<double> interpolated(const Vec3& p) const;
-  /// A SignedDistance sharing this grid (cheap to copy, safe to call concurrently).
+  /// A SignedDistance sharing this grid (cheap to copy, safe to call concurrently); its near()
+  /// answers a kink cell from the lattice when the value is beyond near_mm by more than half
+  /// the cell's diagonal plus kink_jump_mm.
   [[nodiscard]] SignedDistance function() const;
 
   [[nodiscard]] const SdfGridStats& stats() const;
