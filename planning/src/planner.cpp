@@ -349,12 +349,34 @@ std::optional<LayerFrame> layer_frame(const RegionInput& in, const Vec3& at) {
   return LayerFrame{up, at - *s * up};
 }
 
-/// Air points lifting off after `from` and coming down onto `to` (part frame tool poses).
+/// Air points lifting off after `from` and coming down onto `to` (part frame tool poses), at
+/// least lift_mm up and high enough that the move between them keeps the region's allowance
+/// from the template (a feature between the two, e.g. a wall beside a riser's pad).
 void add_lift(RegionPlan& plan, const RegionInput& in, const Transform& from, const Transform& to, const Vec3& up,
               double lift_mm, double speed, double rpm, int segment) {
+  constexpr double kMaxLiftMm = 300.0;
+  double lift = lift_mm;
+  for (int round = 0; round < 4; ++round) {
+    Transform a = from, b = to;
+    a.translation() += lift * up;
+    b.translation() += lift * up;
+    double need = 0.0;  // how much higher the worst sample of the move must be
+    auto check = [&](const Pose& m) {
+      Transform T = m.to_transform();
+      const Vec3 at = T.translation();
+      if (!back_off(*in.tool, T, in.template_sdf, up, in.region->allowance_mm, kMaxLiftMm)) need = kMaxLiftMm;
+      else need = std::max(need, (T.translation() - at).dot(up));
+      return true;
+    };
+    check(Pose::from_transform(a));
+    check(Pose::from_transform(b));
+    for_each_move_sample(Pose::from_transform(a), Pose::from_transform(b), check);
+    if (need <= 0.0) break;
+    lift = std::min(kMaxLiftMm, lift + need + 1.0);  // a millimetre more than the worst sample needs
+  }
   Transform a = from, b = to;
-  a.translation() += lift_mm * up;
-  b.translation() += lift_mm * up;
+  a.translation() += lift * up;
+  b.translation() += lift * up;
   plan.points.push_back(make_point(in.T_base_part, a, speed, rpm, segment, MoveKind::air));
   plan.points.push_back(make_point(in.T_base_part, b, speed, rpm, segment, MoveKind::air));
 }
@@ -391,25 +413,51 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
   const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
   const double air = std::min(settings.air_speed_mm_s, settings.max_speed_mm_s);
   const double lift = plan.max_excess_mm + 5.0;
+  // Footprint points in the layer plane: a raster point whose tool covers none of them grinds
+  // only the margin.
+  std::vector<Eigen::Vector2d> footprint;
+  footprint.reserve(pts.size());
+  for (const auto& p : pts) footprint.emplace_back((p - frame->base).dot(e1), (p - frame->base).dot(e2));
+  const double R = tool_radius(tool);
+  auto covers_material = [&](double a, double b) {
+    return std::any_of(footprint.begin(), footprint.end(),
+                       [&](const Eigen::Vector2d& f) { return (f - Eigen::Vector2d(a, b)).squaredNorm() <= R * R; });
+  };
   int segment = 0;
   for (double level : plan.layer_levels_mm) {
-    std::vector<Transform> layer;
+    // The bounding box's corners can reach over a neighbouring feature the tool cannot pass
+    // (a wall beside the pad): a raster point there that covers no material is left out, and
+    // the tool lifts over the gap; one that covers material is an error (material left).
+    std::vector<std::pair<Transform, bool>> layer;  // pose, after a left-out point
+    bool gap = false;
     for (int r = 0; r < rows; ++r) {
       const double b = std::min(bmax, bmin + r * step);
       for (int c = 0; c < cols; ++c) {
         const int cc = (r % 2 == 0) ? c : cols - 1 - c;  // boustrophedon raster
         const double a = std::min(amax, amin + cc * spacing);
         Transform T = frame_from(frame->base + a * e1 + b * e2 + level * up, up, (r % 2 == 0) ? e1 : Vec3(-e1));
-        if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm))
+        if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm)) {
+          if (!covers_material(a, b)) {
+            gap = true;
+            continue;
+          }
           return region_error(region.name, "gouge",
                               "layer " + std::to_string(segment) + " raster point at " + fmt(T.translation()) +
-                                  ": the tool cannot pass without cutting the template");
-        layer.push_back(T);
+                                  ": the tool cannot reach the riser material there without cutting the template");
+        }
+        layer.emplace_back(T, gap && !layer.empty());
+        gap = false;
       }
     }
-    if (segment > 0) add_lift(plan, in, plan.points.empty() ? layer.front() : in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(),
-                              layer.front(), up, lift, air, rpm, segment);
-    for (const auto& T : layer) plan.points.push_back(make_point(in.T_base_part, T, feed, rpm, segment, MoveKind::grind));
+    if (layer.empty())
+      return region_error(region.name, "gouge",
+                          "layer " + std::to_string(segment) + ": no raster point lets the tool pass without cutting the template");
+    if (segment > 0) add_lift(plan, in, plan.points.empty() ? layer.front().first : in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(),
+                              layer.front().first, up, lift, air, rpm, segment);
+    for (std::size_t k = 0; k < layer.size(); ++k) {
+      if (layer[k].second) add_lift(plan, in, layer[k - 1].first, layer[k].first, up, lift, air, rpm, segment);
+      plan.points.push_back(make_point(in.T_base_part, layer[k].first, feed, rpm, segment, MoveKind::grind));
+    }
     ++segment;
   }
   plan.segments = segment;
