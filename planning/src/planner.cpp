@@ -419,15 +419,21 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
   footprint.reserve(pts.size());
   for (const auto& p : pts) footprint.emplace_back((p - frame->base).dot(e1), (p - frame->base).dot(e2));
   const double R = tool_radius(tool);
-  auto covers_material = [&](double a, double b) {
-    return std::any_of(footprint.begin(), footprint.end(),
-                       [&](const Eigen::Vector2d& f) { return (f - Eigen::Vector2d(a, b)).squaredNorm() <= R * R; });
+  // the highest excess point under the tool at (a, b) in the layer plane, or -1
+  auto material_under = [&](double a, double b) {
+    std::ptrdiff_t best = -1;
+    for (std::size_t k = 0; k < footprint.size(); ++k)
+      if ((footprint[k] - Eigen::Vector2d(a, b)).squaredNorm() <= R * R &&
+          (best < 0 || heights[k] > heights[static_cast<std::size_t>(best)]))
+        best = static_cast<std::ptrdiff_t>(k);
+    return best;
   };
   int segment = 0;
   for (double level : plan.layer_levels_mm) {
     // The bounding box's corners can reach over a neighbouring feature the tool cannot pass
-    // (a wall beside the pad): a raster point there that covers no material is left out, and
-    // the tool lifts over the gap; one that covers material is an error (material left).
+    // (a wall beside the pad): a raster point there that covers no material, or none higher
+    // than leave_unreachable_mm (noise at the pad's edge), is left out (the highest such
+    // material in left_mm) and the tool lifts over the gap; higher material is an error.
     std::vector<std::pair<Transform, bool>> layer;  // pose, after a left-out point
     bool gap = false;
     for (int r = 0; r < rows; ++r) {
@@ -437,13 +443,19 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
         const double a = std::min(amax, amin + cc * spacing);
         Transform T = frame_from(frame->base + a * e1 + b * e2 + level * up, up, (r % 2 == 0) ? e1 : Vec3(-e1));
         if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm)) {
-          if (!covers_material(a, b)) {
+          const auto m = material_under(a, b);
+          if (m < 0 || heights[static_cast<std::size_t>(m)] <= settings.leave_unreachable_mm) {
+            if (m >= 0 && heights[static_cast<std::size_t>(m)] > plan.left_mm)
+              plan.left_mm = heights[static_cast<std::size_t>(m)], plan.left_at = pts[static_cast<std::size_t>(m)];
             gap = true;
             continue;
           }
+          const auto k = static_cast<std::size_t>(m);
           return region_error(region.name, "gouge",
                               "layer " + std::to_string(segment) + " raster point at " + fmt(T.translation()) +
-                                  ": the tool cannot reach the riser material there without cutting the template");
+                                  ": the tool cannot reach the riser material there without cutting the template "
+                                  "(excess point at " + fmt(pts[k]) + ", " + fmt(heights[k]) +
+                                  " mm above the template, part frame)");
         }
         layer.emplace_back(T, gap && !layer.empty());
         gap = false;

@@ -71,7 +71,8 @@ TEST(RiserPlan, LayersCoverTheFootprintAndLeaveTheAllowance) {
 // over a tall column beside the pad, where the tool cannot go at any height the back-off allows:
 // the raster leaves out the points there that cover no material and lifts over the gap (casting
 // 50 of `make accuracy` was refused for such a corner). Material under an unreachable point is
-// still an error.
+// left when it is no higher than leave_unreachable_mm (RegionPlan::left_mm says so), else it is an
+// error naming it.
 TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) {
   auto scene = make_scene();
   RegionInput in = scene.inputs[1];
@@ -105,11 +106,20 @@ TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) 
   RegionInput one = in;
   const auto traj = plan_part("p", {one}, settings);
   ASSERT_TRUE(traj) << traj.error().message;
-  // material right beside the column: the tool cannot reach it, and says so
-  in.excess_points_part.emplace_back(-63.0, 27.0, 45.4);
+  EXPECT_EQ(plan->left_mm, 0.0);
+  // a low excess point beside the column (0.25 mm: noise at the pad's edge) is left and said
+  in.excess_points_part.emplace_back(-63.0, 27.0, 45.25);
+  const auto low = plan_region(in, settings);
+  ASSERT_TRUE(low) << low.error().message;
+  EXPECT_NEAR(low->left_mm, 0.25, 1e-6);
+  EXPECT_NEAR((low->left_at - Vec3(-63.0, 27.0, 45.25)).norm(), 0.0, 1e-9);
+  // material higher than leave_unreachable_mm there: the tool cannot reach it, and says so
+  in.excess_points_part.back() = Vec3(-63.0, 27.0, 45.6);
   const auto refused = plan_region(in, settings);
   ASSERT_FALSE(refused);
   EXPECT_NE(refused.error().message.find("cannot reach the riser material"), std::string::npos) << refused.error().message;
+  EXPECT_NE(refused.error().message.find("(-63.00, 27.00, 45.60), 0.60 mm above"), std::string::npos)
+      << refused.error().message;
 }
 
 // A ring is fitted only to flash that goes round it and only where the recipe says the ring is:

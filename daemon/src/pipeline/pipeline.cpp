@@ -297,6 +297,10 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     auto plan = planning::plan_region(in, settings);
     const double ms = ms_since(t0);
     if (!plan) return step_error("plan", plan.error());
+    if (plan->left_mm > 0.0)
+      log::get("planning")->warn("region '{}': {:.2f} mm of excess material at ({:.2f}, {:.2f}, {:.2f}) (part frame) is left: "
+                                 "the tool cannot reach it without cutting the template",
+                                 in.region->name, plan->left_mm, plan->left_at.x(), plan->left_at.y(), plan->left_at.z());
     for (auto& m : out.regions)
       if (m.name == in.region->name) {
         m.plan_ms = ms;

@@ -70,6 +70,10 @@ struct PlannerSettings {
   double air_speed_mm_s = 100.0;    ///< approach / air / retract (clamped to max_speed_mm_s)
   double lead_mm = 5.0;             ///< lead-in / lead-out length of flash loops and passes
   double max_backoff_mm = 10.0;     ///< how far a pose may back off to avoid a gouge
+  /// Riser raster: excess material no higher than this above the template under a point the
+  /// tool cannot reach is left there (RegionPlan::left_mm says how high); higher is an error.
+  /// The verification's first threshold: less than this is not counted as left material.
+  double leave_unreachable_mm = 0.3;
   double flash_band_mm = 2.0;       ///< inlier band of the flash ellipse / line fits (flash width)
   /// A straight flash's line inliers more than this apart along the line are separate pieces;
   /// the passes run over the pieces holding at least a tenth of the inliers (stray excess points
@@ -91,6 +95,10 @@ struct RegionPlan {
   Line line;                      ///< straight flash: fitted line (part frame)
   double max_excess_mm = 0.0;     ///< riser/straight: D, largest height above the template
   std::vector<double> layer_levels_mm;  ///< riser/straight: heights above the template per layer/pass
+  /// riser: the highest excess material left under raster points the tool cannot reach (no
+  /// higher than PlannerSettings::leave_unreachable_mm; 0: none left)
+  double left_mm = 0.0;
+  Vec3 left_at = Vec3::Zero();    ///< ... where (part frame)
 };
 
 // --- the pose equations (Zhu et al. 2022, Eqs. 17–21) ---------------------------------------
