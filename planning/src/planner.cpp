@@ -17,7 +17,6 @@ namespace {
 constexpr std::size_t kMinRegionPoints = 20;
 constexpr double kSweepStepMm = 1.0;  ///< validation samples moves between points this finely
 constexpr double kBackoffTolMm = 0.002;  ///< a back-off leaves at most this much more than needed
-constexpr double kFarClearMm = 5.0;      ///< tool_penetration_mm: a tip this far beyond the tool's reach is clear
 constexpr double kProbeNearMm = 2.0;     ///< tool_penetration_mm: probes need exact distances this near
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
@@ -110,20 +109,23 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
   };
   double p = pen(0.0);
   if (p <= 1e-6) return true;
-  constexpr double kStep = 0.25;
+  constexpr double kStep = 0.25, kMinRate = 0.02;
   double lo = 0.0, hi = -1.0, rate = 1.0;
   while (hi < 0.0 && lo < max_mm) {
-    const double step = std::max(p, std::min(1.05 * p / rate + 1e-4, p + kStep));
+    // where the penetration barely falls (the rate at its floor) the longest step allowed: a
+    // secant step there would crawl by micrometres
+    const double step = rate <= kMinRate ? p + kStep : std::max(p, std::min(1.05 * p / rate + 1e-4, p + kStep));
     const double s = std::min(lo + step, max_mm);
     const double q = pen(s);
     if (q <= 1e-6) {
       hi = s;
     } else {
-      rate = std::clamp((p - q) / (s - lo), 0.02, 1.0);
+      rate = std::clamp((p - q) / (s - lo), kMinRate, 1.0);
       lo = s, p = q;
     }
   }
   if (hi < 0.0) return false;
+  lo = std::min(hi, lo + p);  // nothing nearer than lo + p can be clear (hi is the tested answer)
   while (hi - lo > kBackoffTolMm) {
     const double mid = 0.5 * (lo + hi);
     (pen(mid) > 1e-6 ? lo : hi) = mid;
@@ -615,15 +617,10 @@ double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_too
   }
   // cylinder (cones conservatively as cylinders): end face discs, rim rings
   const double L = std::max(0.0, tool.length_mm);
-  // Far from the template (the tip more than the tool's bounding radius plus kFarClearMm away,
-  // an air move) no probe can reach it: the bound is the answer (a signed distance changes by
-  // at most the distance moved; the margin covers the sampled function's jumps of up to a
-  // sample spacing).
   // Each probe's distance matters only within kProbeNearMm of the surface (no clearance is
   // larger); a probe farther off contributes less than -kProbeNearMm either way.
   const double d_tip = sdf.near(tip, kProbeNearMm);
   if (deepest != nullptr) *deepest = tip;
-  if (const double rho = std::hypot(R, L); d_tip > rho + kFarClearMm) return rho - d_tip;
   double worst = -d_tip;
   auto probe = [&](const Vec3& p) {
     const double pen = -sdf.near(p, kProbeNearMm);

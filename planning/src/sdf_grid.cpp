@@ -49,7 +49,9 @@ struct Level {
   std::vector<std::uint64_t> flags;        ///< kFlagWords per brick: cell answered exactly
   std::uint64_t exact_cells = 0;
 
-  [[nodiscard]] Lookup lattice(const Vec3& p, double& out) const {
+  /// `same_sign`, when given, says for a kink cell whether its eight corners all have the
+  /// sign of the interpolated value.
+  [[nodiscard]] Lookup lattice(const Vec3& p, double& out, bool* same_sign = nullptr) const {
     const Vec3 q = (p - origin) * inv_voxel;
     const double fx = std::floor(q.x()), fy = std::floor(q.y()), fz = std::floor(q.z());
     if (!(fx >= 0.0 && fy >= 0.0 && fz >= 0.0)) return Lookup::uncovered;  // also NaN
@@ -72,7 +74,13 @@ struct Level {
     out = (c0 + tz * (c1 - c0)) / scale;
     const bool kink =
         (flags[static_cast<std::size_t>(b) * kFlagWords + static_cast<std::size_t>(cell >> 6)] >> (cell & 63)) & 1U;
-    return kink ? Lookup::kink : Lookup::value;
+    if (!kink) return Lookup::value;
+    if (same_sign != nullptr) {
+      const std::int16_t lo = std::min({v[0], v[1], v[dy], v[dy + 1], v[dz], v[dz + 1], v[dz + dy], v[dz + dy + 1]});
+      const std::int16_t hi = std::max({v[0], v[1], v[dy], v[dy + 1], v[dz], v[dz + 1], v[dz + dy], v[dz + dy + 1]});
+      *same_sign = out > 0 ? lo > 0 : hi < 0;
+    }
+    return Lookup::kink;
   }
 
   /// How far an interpolated value can be from the exact function anywhere in a cell: a
@@ -211,12 +219,16 @@ struct SdfGrid::Data {
     return v ? *v : exact(p);
   }
   /// As at(), but a kink cell whose interpolated value is beyond near_mm by more than the
-  /// cell's bound answers with that value (the exact distance is beyond near_mm too).
+  /// cell's bound, with all eight corners of its sign, answers with that value (the exact
+  /// distance is beyond near_mm too). Mixed corner signs (a sign flip of the sampled function:
+  /// an open border, the depth where it turns to +search) go to the exact function.
   [[nodiscard]] double near(const Vec3& p, double near_mm) const {
     double v = 0.0;
-    for (const auto& level : levels) switch (level.lattice(p, v)) {
+    bool same_sign = false;
+    for (const auto& level : levels) switch (level.lattice(p, v, &same_sign)) {
         case Lookup::value: return v;
-        case Lookup::kink: return std::abs(v) > near_mm + level.kink_bound(settings.kink_jump_mm) ? v : exact(p);
+        case Lookup::kink:
+          return same_sign && std::abs(v) > near_mm + level.kink_bound(settings.kink_jump_mm) ? v : exact(p);
         case Lookup::uncovered: break;
       }
     return exact(p);
@@ -239,6 +251,7 @@ SdfGrid SdfGrid::build(SignedDistance exact, const Vec3& box_min, const Vec3& bo
   auto& s = d->settings;
   if (!(s.voxel_mm > 0)) s.voxel_mm = 0.5;
   if (!(s.far_voxel_mm > 0)) s.far_voxel_mm = 4 * s.voxel_mm;
+  if (!(s.kink_jump_mm >= 0 && std::isfinite(s.kink_jump_mm))) s.kink_jump_mm = SdfGridSettings{}.kink_jump_mm;
   s.far_band_mm = std::max(s.far_band_mm, s.band_mm);
   d->exact = std::move(exact);
   const int threads = s.threads > 0 ? s.threads : static_cast<int>(std::max(1U, std::thread::hardware_concurrency()));
@@ -334,9 +347,9 @@ std::optional<SdfGrid> SdfGrid::load(const std::filesystem::path& file, std::uin
   const std::string s((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   if (s.size() < kMagic.size() + 2 * sizeof(std::uint64_t) || std::memcmp(s.data(), kMagic.data(), kMagic.size() - 1) != 0)
     return fail("not a signed-distance grid cache (bad magic)");
-  if (s[kMagic.size() - 1] != kMagic.back())
-    return fail(std::string("written in format version ") + s[kMagic.size() - 1] + ", this build reads version " +
-                kMagic.back());
+  if (const char v = s[kMagic.size() - 1]; v != kMagic.back())
+    return fail("written in format version " + (v >= '0' && v <= '9' ? std::string(1, v) : std::string("?")) +
+                ", this build reads version " + kMagic.back());
   std::uint64_t stored_sum = 0;
   std::memcpy(&stored_sum, s.data() + s.size() - sizeof(stored_sum), sizeof(stored_sum));
   if (fnv1a(s.data(), s.size() - sizeof(stored_sum)) != stored_sum) return fail("corrupt (checksum mismatch)");
@@ -346,6 +359,7 @@ std::optional<SdfGrid> SdfGrid::load(const std::filesystem::path& file, std::uin
   if (!r.get(stored_key)) return fail("truncated");
   if (stored_key != key) return fail("written for another golden template or other settings");
   if (!r.get(d->settings)) return fail("truncated");
+  if (!(d->settings.kink_jump_mm >= 0 && std::isfinite(d->settings.kink_jump_mm))) return fail("invalid header");
   for (auto& L : d->levels) {
     double ox = 0, oy = 0, oz = 0;
     std::uint64_t bricks = 0;

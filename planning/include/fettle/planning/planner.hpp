@@ -161,9 +161,8 @@ Result<Trajectory> plan_part(const std::string& part_id, const std::vector<Regio
 Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
 
 /// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool; `deepest`, when
-/// given, receives the point of the tool (part frame) that goes deepest. A cylinder whose tip is
-/// more than its bounding radius plus 5 mm from the template gets that bound (negative: clear
-/// by at least this much) without probing its surface; its probes ask SignedDistance::near
+/// given, receives the point of the tool (part frame) that goes deepest. A cylinder's probes ask
+/// SignedDistance::near
 /// (exact within 2 mm of the template, where a penetration or a clearance is decided).
 double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
                            Vec3* deepest = nullptr);
