@@ -279,8 +279,9 @@ const SdfGridStats& SdfGrid::stats() const { return data_->stats; }
 const SdfGridSettings& SdfGrid::settings() const { return data_->settings; }
 
 // --- cache file --------------------------------------------------------------------------------
-// magic (its last byte the format version), key, settings, per level (band, far): origin xyz, nbx nby nbz, bricks, brick_of, values, flags,
-// stats.exact_cells, checksum (FNV-1a of everything before it).
+// magic (its last byte the format version), key, settings, per level (band, far): origin xyz,
+// voxel, scale, nbx nby nbz, bricks, exact_cells, brick_of, values, flags; checksum (FNV-1a of
+// everything before it).
 
 namespace {
 

@@ -8,8 +8,8 @@
 // A ball tool's sphere centre is TCP + R·z; a cylinder tool occupies TCP + [0, length]·z with
 // radius R. See docs/planning.md.
 #include <functional>
-#include <type_traits>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "fettle/config/cell.hpp"
@@ -162,8 +162,8 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
 
 /// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool; `deepest`, when
 /// given, receives the point of the tool (part frame) that goes deepest. A cylinder's probes ask
-/// SignedDistance::near
-/// (exact within 2 mm of the template, where a penetration or a clearance is decided).
+/// SignedDistance::near (exact within 2 mm of the template, where a penetration or a clearance
+/// is decided).
 double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
                            Vec3* deepest = nullptr);
 
