@@ -17,7 +17,7 @@ namespace {
 constexpr std::size_t kMinRegionPoints = 20;
 constexpr double kSweepStepMm = 1.0;  ///< validation samples moves between points this finely
 constexpr double kBackoffTolMm = 0.002;  ///< a back-off leaves at most this much more than needed
-constexpr double kProbeNearMm = 2.0;     ///< tool_penetration_mm: probes need exact distances this near
+constexpr double kProbeNearMm = 2.0;     ///< tool_penetration_mm: probes are exact at least this near
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};
@@ -106,7 +106,7 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
   auto pen = [&](double s) {
     Transform T = T_part_tool;
     T.translation() += s * dir;
-    return tool_penetration_mm(tool, T, sdf) + clearance_mm;
+    return tool_penetration_mm(tool, T, sdf, nullptr, clearance_mm) + clearance_mm;
   };
   double p = pen(0.0);
   if (p <= 1e-6) return true;
@@ -162,7 +162,7 @@ bool clear_moves(const config::Tool& tool, std::vector<Transform>& poses, const 
     for (std::size_t i = 1; i < poses.size(); ++i) {
       double worst = -std::numeric_limits<double>::infinity();
       for_each_move_sample(Pose::from_transform(poses[i - 1]), Pose::from_transform(poses[i]), [&](const Pose& m) {
-        worst = std::max(worst, tool_penetration_mm(tool, m.to_transform(), sdf) + clearance_mm);
+        worst = std::max(worst, tool_penetration_mm(tool, m.to_transform(), sdf, nullptr, clearance_mm) + clearance_mm);
         return true;
       });
       if (worst <= 1e-6) continue;
@@ -354,34 +354,65 @@ std::optional<LayerFrame> layer_frame(const RegionInput& in, const Vec3& at) {
 
 /// Air points lifting off after `from` and coming down onto `to` (part frame tool poses), at
 /// least lift_mm up and high enough that the move between them keeps the region's allowance
-/// from the template (a feature between the two, e.g. a wall beside a riser's pad).
-void add_lift(RegionPlan& plan, const RegionInput& in, const Transform& from, const Transform& to, const Vec3& up,
-              double lift_mm, double speed, double rpm, int segment) {
+/// from the template (a feature between the two, e.g. a wall beside a riser's pad). The way up
+/// and the way down must keep it too (nothing overhangs the two poses). An error when no lift
+/// up to kMaxLiftMm does, naming the move and where the template is in the way.
+std::optional<Error> add_lift(RegionPlan& plan, const RegionInput& in, const Transform& from, const Transform& to,
+                              const Vec3& up, double lift_mm, double speed, double rpm, int segment) {
   constexpr double kMaxLiftMm = 300.0;
+  const double clearance = in.region->allowance_mm;
   double lift = lift_mm;
   auto lifted = [&](const Transform& T) {
     Transform L = T;
     L.translation() += lift * up;
     return L;
   };
-  for (int round = 0; round < 4; ++round) {
+  auto cuts = [&](const Transform& T) {
+    return tool_penetration_mm(*in.tool, T, in.template_sdf, nullptr, clearance) + clearance > 1e-6;
+  };
+  auto refused = [&](const std::string& what) {
+    return region_error(in.region->name, "gouge",
+                        "the air move lifting off at " + fmt(from.translation()) + " and coming down onto " +
+                            fmt(to.translation()) + " (part frame): " + what);
+  };
+  for (int round = 0;; ++round) {
     const Transform a = lifted(from), b = lifted(to);
-    double need = 0.0;  // how much higher the worst sample of the move must be
+    double need = 0.0;  // how much higher the worst sample of the move between them must be
+    Vec3 blocked = Vec3::Zero();
     auto check = [&](const Pose& m) {
       Transform T = m.to_transform();
       const Vec3 at = T.translation();
-      if (!back_off(*in.tool, T, in.template_sdf, up, in.region->allowance_mm, kMaxLiftMm)) need = kMaxLiftMm;
-      else need = std::max(need, (T.translation() - at).dot(up));
+      const double raise = back_off(*in.tool, T, in.template_sdf, up, clearance, kMaxLiftMm)
+                               ? (T.translation() - at).dot(up)
+                               : kMaxLiftMm;
+      if (raise > need) need = raise, blocked = at;
       return true;
     };
     check(Pose::from_transform(a));
     check(Pose::from_transform(b));
     for_each_move_sample(Pose::from_transform(a), Pose::from_transform(b), check);
     if (need <= 0.0) break;
+    if (lift >= kMaxLiftMm || round == 5)
+      return refused("no lift up to " + fmt(kMaxLiftMm, 0) + " mm keeps the allowance over the template (at " +
+                     fmt(blocked) + ", lifted " + fmt(lift, 1) + " mm)");
     lift = std::min(kMaxLiftMm, lift + need + 1.0);  // a millimetre more than the worst sample needs
+  }
+  // the ways up and down, sampled as validation samples them
+  for (const bool going_up : {true, false}) {
+    const Pose lo = Pose::from_transform(going_up ? from : lifted(to));
+    const Pose hi = Pose::from_transform(going_up ? lifted(from) : to);
+    std::optional<Vec3> hit;
+    for_each_move_sample(lo, hi, [&](const Pose& m) {
+      if (cuts(m.to_transform())) hit = m.position_mm;
+      return !hit;
+    });
+    if (hit)
+      return refused(std::string("the template overhangs it: on the way ") + (going_up ? "up" : "down") +
+                     " the tool reaches it at " + fmt(*hit));
   }
   plan.points.push_back(make_point(in.T_base_part, lifted(from), speed, rpm, segment, MoveKind::air));
   plan.points.push_back(make_point(in.T_base_part, lifted(to), speed, rpm, segment, MoveKind::air));
+  return std::nullopt;
 }
 
 Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
@@ -464,10 +495,14 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
     if (layer.empty())
       return region_error(region.name, "gouge",
                           "layer " + std::to_string(segment) + ": no raster point lets the tool pass without cutting the template");
-    if (segment > 0) add_lift(plan, in, plan.points.empty() ? layer.front().first : in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(),
-                              layer.front().first, up, lift, air, rpm, segment);
+    if (segment > 0) {
+      const Transform from = plan.points.empty() ? layer.front().first
+                                                 : in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform();
+      if (auto e = add_lift(plan, in, from, layer.front().first, up, lift, air, rpm, segment)) return *e;
+    }
     for (std::size_t k = 0; k < layer.size(); ++k) {
-      if (layer[k].second) add_lift(plan, in, layer[k - 1].first, layer[k].first, up, lift, air, rpm, segment);
+      if (layer[k].second)
+        if (auto e = add_lift(plan, in, layer[k - 1].first, layer[k].first, up, lift, air, rpm, segment)) return *e;
       plan.points.push_back(make_point(in.T_base_part, layer[k].first, feed, rpm, segment, MoveKind::grind));
     }
     ++segment;
@@ -538,8 +573,9 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
       pass.push_back(T);
     }
     if (segment > 0)
-      add_lift(plan, in, in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(), pass.front(), up,
-               plan.max_excess_mm + 5.0, air, rpm, segment);
+      if (auto e = add_lift(plan, in, in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(),
+                            pass.front(), up, plan.max_excess_mm + 5.0, air, rpm, segment))
+        return *e;
     for (const auto& T : pass) plan.points.push_back(make_point(in.T_base_part, T, feed, rpm, segment, MoveKind::grind));
     ++segment;
   }
@@ -605,7 +641,7 @@ std::vector<double> layer_levels(const std::vector<double>& heights_mm, double d
 }
 
 double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
-                           Vec3* deepest) {
+                           Vec3* deepest, double exact_within_mm) {
   const double R = tool_radius(tool);
   const Vec3 z = T_part_tool.linear().col(2);
   const Vec3 tip = T_part_tool.translation();
@@ -614,11 +650,12 @@ double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_too
     return R - sdf(tip + R * z);  // exact for a true distance
   }
   // cylinder (cones conservatively as cylinders): end face discs, rim rings
-  // Each probe's distance matters only within kProbeNearMm of the surface (no clearance is
-  // larger); a probe farther off contributes less than -kProbeNearMm either way.
+  // Each probe's distance matters only within the clearance or penetration being decided
+  // (exact_within_mm, at least kProbeNearMm); a probe farther off reads farther either way.
+  const double near_mm = std::max(kProbeNearMm, std::abs(exact_within_mm));
   double worst = -std::numeric_limits<double>::infinity();
   auto probe = [&](const Vec3& p) {
-    const double pen = -sdf.near(p, kProbeNearMm);
+    const double pen = -sdf.near(p, near_mm);
     if (pen > worst) {
       worst = pen;
       if (deepest != nullptr) *deepest = p;
@@ -807,7 +844,9 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
       return fail("input", "the segment " + std::to_string(p.segment) + " names no planned region");
     const RegionInput& in = *it->second;
     const Transform T_part_base = in.T_base_part.inverse();
-    const double pen = tool_penetration_mm(*in.tool, T_part_base * p.T_base_tool.to_transform(), in.template_sdf);
+    const double allowance = in.region->allowance_mm;
+    const double pen =
+        tool_penetration_mm(*in.tool, T_part_base * p.T_base_tool.to_transform(), in.template_sdf, nullptr, allowance);
     if (pen > in.region->allowance_mm + 1e-6)
       return fail("gouge", "the tool cuts " + fmt(pen, 3) + " mm into the template (allowed: " +
                                fmt(in.region->allowance_mm, 3) + " mm)");
@@ -816,7 +855,7 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
     if (i > 0) {
       std::optional<Error> gouge;
       for_each_move_sample(trajectory.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {
-        const double pm = tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf);
+        const double pm = tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf, nullptr, allowance);
         if (pm <= in.region->allowance_mm + 1e-6) return true;
         gouge = fail("gouge", "on the move from point " + std::to_string(i - 1) + " at " + fmt(m.position_mm) +
                                   " mm (base) the tool cuts " + fmt(pm, 3) + " mm into the template (allowed: " +

@@ -122,6 +122,79 @@ TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) 
       << refused.error().message;
 }
 
+// A lift is checked on its way up and down too: a slab over the pad (an overhang the ball
+// passes under while grinding) is in the way of the lift between the riser's layers, however
+// high it goes, and the plan is refused naming the move (the lift used to be added regardless,
+// and only validation's allowance-deep limit stood between it and the slab).
+TEST(RiserPlan, ALiftUnderAnOverhangIsRefusedNamingTheMove) {
+  auto scene = make_scene();
+  RegionInput in = scene.inputs[1];
+  const auto open = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(open) << open.error().message;
+  ASSERT_GT(open->segments, 1);  // lifts between layers
+  // the ball's top passes 5.7 mm under the slab on the first layer; the lift (D + 5 mm) reaches it
+  const Vec3 slab_lo(-110, 22, 72), slab_hi(-62, 85, 80);
+  in.template_sdf = [=](const Vec3& p) { return std::min(part_sdf(p), testing::sdf_box(p, slab_lo, slab_hi)); };
+  const auto refused = plan_region(in, PlannerSettings{});
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code, "planning.gouge");
+  EXPECT_NE(refused.error().message.find("region 'riser': the air move lifting off at"), std::string::npos)
+      << refused.error().message;
+  EXPECT_NE(refused.error().message.find("the template overhangs it: on the way up"), std::string::npos)
+      << refused.error().message;
+}
+
+// A wall 400 mm tall across part of the pad (the material beside it removed, so the raster
+// leaves the points over it out and lifts over the gap): no lift up to 300 mm clears it, and
+// the plan says so instead of adding a lift through the wall.
+TEST(RiserPlan, AWallNoLiftClearsIsRefusedNamingIt) {
+  auto scene = make_scene();
+  RegionInput in = scene.inputs[1];
+  const Vec3 wall_lo(-83, 22, 0), wall_hi(-81, 34, 400);
+  in.template_sdf = [=](const Vec3& p) { return std::min(part_sdf(p), testing::sdf_box(p, wall_lo, wall_hi)); };
+  std::erase_if(in.excess_points_part, [](const Vec3& p) { return std::abs(p.x() + 82.0) < 14.0 && p.y() < 50.0; });
+  const auto refused = plan_region(in, PlannerSettings{});
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code, "planning.gouge");
+  EXPECT_NE(refused.error().message.find("no lift up to 300 mm keeps the allowance"), std::string::npos)
+      << refused.error().message;
+}
+
+// Tool probes ask the template's near(p, d), which is exact only within d: a clearance larger
+// than the 2 mm the probes ask for by default must be asked for. A template whose near() answers
+// 2.5 mm too far beyond d (as a signed-distance grid's lattice may, within its bound) and a
+// ridge beside the riser that the disc's last layers must back off from: every grinding pose
+// keeps the 3 mm allowance by the exact distance (with d = 2 mm the back-off stopped at 2 mm).
+TEST(RiserPlan, ABackOffKeepsAnAllowanceBeyondTwoMillimetres) {
+  auto scene = make_scene();
+  RegionInput in = scene.inputs[1];
+  in.tool = &scene.tools[0];  // the 40 mm disc: probes over its face and rim
+  config::Region region = scene.regions[1];
+  region.allowance_mm = 3.0;
+  in.region = &region;
+  const Vec3 ridge_lo(-110, 76, 45), ridge_hi(-62, 80, 47.6);  // 2.6 mm above the pad
+  auto exact = [=](const Vec3& p) { return std::min(part_sdf(p), testing::sdf_box(p, ridge_lo, ridge_hi)); };
+  in.template_sdf = SignedDistance(exact, [=](const Vec3& p, double d) {
+    const double v = exact(p);
+    return std::abs(v) <= d ? v : v + std::copysign(2.5, v);
+  });
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  const SignedDistance truth = exact;
+  std::size_t grind = 0, backed_off = 0;
+  double worst = -1e9;
+  for (const auto& p : plan->points) {
+    if (p.kind != MoveKind::grind) continue;
+    ++grind;
+    const double pen = tool_penetration_mm(*in.tool, p.T_base_tool.to_transform(), truth, nullptr, 3.0);
+    worst = std::max(worst, pen);
+    if (p.segment == plan->segments - 1 && p.T_base_tool.position_mm.z() > 45.0 + 3.0 + 0.1) ++backed_off;
+  }
+  EXPECT_GT(grind, 100U);
+  EXPECT_GT(backed_off, 0U);  // the ridge did push the last layer up somewhere
+  EXPECT_LE(worst, -3.0 + 0.01);
+}
+
 // A ring is fitted only to flash that goes round it and only where the recipe says the ring is:
 // a re-grind's leftover arc or a region the camera barely sees is refused with the reason, never
 // turned into a loop around a guessed ellipse (the demo's re-grind once put the disc 7 mm into

@@ -162,9 +162,10 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool);
 
 /// Penetration (mm, > 0 = into the template) of the tool placed at T_part_tool; `deepest`, when
 /// given, receives the point of the tool (part frame) that goes deepest. A cylinder's probes ask
-/// SignedDistance::near (exact within 2 mm of the template, where a penetration or a clearance
-/// is decided).
+/// SignedDistance::near(p, max(2 mm, |exact_within_mm|)): the result is exact wherever it is
+/// within ±exact_within_mm (pass the clearance or the allowance being decided); farther, it is
+/// only known to be farther.
 double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_tool, const SignedDistance& sdf,
-                           Vec3* deepest = nullptr);
+                           Vec3* deepest = nullptr, double exact_within_mm = 2.0);
 
 }  // namespace fettle::planning
