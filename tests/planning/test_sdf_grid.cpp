@@ -192,6 +192,59 @@ TEST(SdfGrid, NearIsExactNearTheSurfaceAndBoundedBeyondIt) {
   EXPECT_LT(by_near, by_at);
 }
 
+// A solid thicker than twice search_mm, sampled on all six faces: deeper than search_mm inside
+// it the sampled function finds no sample and reads +search_mm (outside), so its sign jumps
+// inside the solid, where the lattice cells' corners disagree. near() must keep its contract
+// there too: exact within +-d, beyond it the sampled function's sign, a value beyond d and
+// within the cell's bound (no tool goes that deep; a lattice answer there would not be the
+// function the grid stands for).
+TEST(SdfGrid, NearKeepsItsContractInsideASolidThickerThanTheSearchRadius) {
+  std::vector<Vec3> pts, nrm;
+  const Vec3 lo(0, 0, 0), hi(70, 70, 60);
+  constexpr double kPitch = 0.5, kSearch = 25.0;
+  for (double a = kPitch / 2; a < 70; a += kPitch)
+    for (double b = kPitch / 2; b < 70; b += kPitch) {
+      pts.emplace_back(a, b, hi.z()), nrm.push_back(Vec3::UnitZ());
+      pts.emplace_back(a, b, lo.z()), nrm.push_back(-Vec3::UnitZ());
+    }
+  for (double a = kPitch / 2; a < 70; a += kPitch)
+    for (double z = kPitch / 2; z < 60; z += kPitch) {
+      pts.emplace_back(a, lo.y(), z), nrm.push_back(-Vec3::UnitY());
+      pts.emplace_back(a, hi.y(), z), nrm.push_back(Vec3::UnitY());
+      pts.emplace_back(lo.x(), a, z), nrm.push_back(-Vec3::UnitX());
+      pts.emplace_back(hi.x(), a, z), nrm.push_back(Vec3::UnitX());
+    }
+  const SignedDistance exact = sdf_from_samples(pts, nrm, 4.0, kSearch);
+  ASSERT_EQ(exact(Vec3(35, 35, 30)), kSearch);  // the centre, 30 mm deep, reads as outside
+  ASSERT_LT(exact(Vec3(35, 35, 40)), -19.0);    // 20 mm deep: inside
+  const auto grid = SdfGrid::build(exact, lo, hi, SdfGridSettings{});
+  const auto sdf = grid.function();
+  constexpr double kNear = 2.0;
+  const double bound = 0.5 * std::sqrt(3.0) * grid.settings().far_voxel_mm + grid.settings().kink_jump_mm;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> x(-10, 80), y(-10, 80), z(-10, 75);
+  int deep = 0, jump_zone = 0;
+  for (int k = 0; k < 60000; ++k) {
+    const double pz = z(rng), py = y(rng), px = x(rng);
+    const Vec3 p(px, py, pz);
+    const double truth = exact(p);
+    const double v = sdf.near(p, kNear);
+    const double depth = std::min({p.x(), p.y(), p.z(), 70 - p.x(), 70 - p.y(), 60 - p.z()});
+    deep += depth > kSearch ? 1 : 0;
+    jump_zone += std::abs(depth - kSearch) < 2.0 ? 1 : 0;
+    if (std::abs(truth) <= kNear) {
+      ASSERT_EQ(v, sdf(p)) << p.transpose();
+      ASSERT_NEAR(v, truth, 0.3) << p.transpose();
+      continue;
+    }
+    ASSERT_EQ(v > 0, truth > 0) << p.transpose() << " near " << v << " exact " << truth;
+    ASSERT_GT(std::abs(v), kNear) << p.transpose();
+    ASSERT_LE(std::abs(v - truth), bound) << p.transpose() << " near " << v << " exact " << truth;
+  }
+  EXPECT_GT(deep, 100);       // the test did sample where the function reads +search_mm inside
+  EXPECT_GT(jump_zone, 300);  // and where it jumps
+}
+
 TEST(SdfGrid, FarFromEverythingIsTheExactAnswer) {
   const auto grid = build_grid();
   EXPECT_EQ(grid(Vec3(0, 0, 500)), scene().exact(Vec3(0, 0, 500)));
