@@ -66,6 +66,11 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
   for (const auto& r : e.at("regions")) {
     const auto name = r.at("name").get<std::string>();
     EXPECT_GT(r.at("plan").at("trajectory_points").get<long>(), 0) << name;
+    // material the tool could not reach is reported (none on this seed; casting 50 leaves 0.25 mm)
+    const double left = r.at("plan").at("material_left_mm").get<double>();
+    EXPECT_GE(left, 0.0) << name;
+    EXPECT_LE(left, 0.3) << name;  // the planner's leave_unreachable_mm
+    EXPECT_EQ(r.at("plan").contains("material_left_at_mm"), left > 0.0) << name;
     EXPECT_TRUE(r.contains("template_comparison")) << name;
     const double depth = r.at("max_gouge_depth_mm").get<double>();
     deepest = std::max(deepest, depth);

@@ -306,6 +306,8 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
         m.plan_ms = ms;
         m.trajectory_points = plan->points.size();
         m.segments = plan->segments;
+        m.material_left_mm = plan->left_mm;
+        m.material_left_at = plan->left_at;
       }
     plans.push_back(std::move(plan.value()));
   }

@@ -122,6 +122,11 @@ struct RegionMetrics {
   std::size_t trajectory_points = 0;  ///< grinding points planned for the region (0 = nothing to grind)
   int segments = 0;
   double plan_ms = 0.0;
+  /// Excess material the tool cannot reach without cutting the template, left on the part
+  /// (no higher than the planner's leave_unreachable_mm; process() also logs a warning): its
+  /// height in mm (0: none) and where (part frame).
+  double material_left_mm = 0.0;
+  Vec3 material_left_at = Vec3::Zero();
 };
 
 struct ProcessOptions {
