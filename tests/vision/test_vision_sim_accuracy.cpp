@@ -17,6 +17,18 @@
 // FETTLE_ACCURACY_GROUND=1 removes every bit of flash and riser first (an oracle grind): it
 // separates the pull of the material from the scanner's errors.
 //
+// FETTLE_ACCURACY_RESIDUALS=1 prints, per seed, how far the data itself pins the pose: the
+// residuals of the points near the golden body at the TRUE pose, per surface class (top,
+// walls by the way they face, slant: edges and roundings), and the error of an ideal fit: the
+// rigid correction a point-to-plane fit on the exact golden surface makes from the true pose
+// (points more than 0.3 mm outside trimmed, as the whole-part ICP trims). Once for the
+// preprocessed scene the ICP sees, once for the raw capture (FETTLE_ACCURACY_VIEW2=<slide mm>
+// adds a second view's raw points). With FETTLE_ACCURACY_GROUND=1 (no material) that is the
+// scanner's bound: no fit of those points does better than their ideal fit. (With material
+// the ideal fit is pulled by the material too.)
+//
+// FETTLE_ACCURACY_FIRST=<seed>: start at this seed (default 1).
+//
 // DISABLED (not run by ctest / CI) because the vision stage does not meet it yet: on 50 seeds
 // (2026-12-02, region fitness over the visible surface, flange and riser on the part's pose)
 // every region is found, and the median region errors are flange 0.049 mm, riser 0.085 mm,
@@ -27,6 +39,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <map>
@@ -72,6 +85,64 @@ PartTemplate golden_template(const fettle::config::PartRecipe& recipe) {
   return PartTemplate::build(recipe, cloud);
 }
 
+struct ClassStats {
+  double sum = 0, sum2 = 0;
+  long n = 0;
+};
+
+/// The residuals and the ideal fit of FETTLE_ACCURACY_RESIDUALS (see the top of the file).
+struct IdealFit {
+  std::map<std::string, ClassStats> classes;
+  Transform T_part_template = Transform::Identity();  ///< the golden moved onto the points
+};
+
+IdealFit ideal_fit(const fettle::sim::Casting& casting, const std::vector<Vec3>& points_part) {
+  IdealFit out;
+  Eigen::Matrix<double, 6, 6> A = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> b = Eigen::Matrix<double, 6, 1>::Zero();
+  for (const Vec3& p : points_part) {
+    const double d = casting.golden_sdf_mm(p);
+    if (!(std::abs(d) <= 1.0)) continue;
+    Vec3 g;
+    for (int k = 0; k < 3; ++k) {
+      Vec3 h = Vec3::Zero();
+      h(k) = 0.05;
+      g(k) = (casting.golden_sdf_mm(p + h) - casting.golden_sdf_mm(p - h)) / 0.1;
+    }
+    if (!(g.norm() > 0.5)) continue;
+    g.normalize();
+    const char* cls = g.z() > 0.9                         ? "top"
+                      : g.z() < -0.9                      ? "bottom"
+                      : std::abs(g.z()) >= 0.3            ? "slant"
+                      : std::abs(g.x()) > std::abs(g.y()) ? (g.x() > 0 ? "wall+x" : "wall-x")
+                                                          : (g.y() > 0 ? "wall+y" : "wall-y");
+    auto& c = out.classes[cls];
+    c.sum += d, c.sum2 += d * d, ++c.n;
+    if (d > 0.3) continue;
+    Eigen::Matrix<double, 6, 1> J;
+    J.head<3>() = p.cross(g);
+    J.tail<3>() = g;
+    A += J * J.transpose();
+    b -= J * d;
+  }
+  const Eigen::Matrix<double, 6, 1> x = A.ldlt().solve(b);  // moves the points onto the golden
+  Transform C = Transform::Identity();
+  if (x.head<3>().norm() > 0) C.linear() = Eigen::AngleAxisd(x.head<3>().norm(), x.head<3>().normalized()).toRotationMatrix();
+  C.translation() = x.tail<3>();
+  out.T_part_template = C.inverse();
+  return out;
+}
+
+void print_classes(int seed, const char* what, const IdealFit& f) {
+  std::printf("seed %d %s residuals at the true pose (mm):", seed, what);
+  for (const auto& [cls, c] : f.classes) {
+    const double mean = c.sum / static_cast<double>(c.n);
+    std::printf("  %s %.3f+-%.3f (%ld)", cls.c_str(), mean,
+                std::sqrt(std::max(0.0, c.sum2 / static_cast<double>(c.n) - mean * mean)), c.n);
+  }
+  std::printf("\n");
+}
+
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   return v.empty() ? 0.0 : v[v.size() / 2];
@@ -97,7 +168,9 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
   std::vector<double> riser_volume_error;
   std::map<std::string, std::vector<double>> surface_region_mm, surface_whole_mm;
   int failures = 0;
-  for (int seed = 1; seed <= seeds; ++seed) {
+  const char* first_env = std::getenv("FETTLE_ACCURACY_FIRST");
+  const int first = first_env != nullptr ? std::max(1, std::atoi(first_env)) : 1;
+  for (int seed = first; seed < first + seeds; ++seed) {
     auto casting = fettle::sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
     if (std::getenv("FETTLE_ACCURACY_GROUND") != nullptr) casting.remove_all_material();
     const auto capture = scanner.capture(casting, 0.0);
@@ -113,6 +186,33 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
       continue;
     }
     ASSERT_EQ(r->regions.size(), recipe.regions.size());
+    if (std::getenv("FETTLE_ACCURACY_RESIDUALS") != nullptr) {
+      const Transform T_part_base = capture.truth.T_base_part.inverse();
+      std::vector<Vec3> pre;  // the preprocessed scene, part frame at the true pose
+      for (const auto& q : r->scene_part.points) pre.push_back(T_part_base * (r->whole.T_scene_template * q.cast<double>()));
+      std::vector<Vec3> raw;
+      std::vector<fettle::sim::Capture> views{capture};
+      if (const char* v2 = std::getenv("FETTLE_ACCURACY_VIEW2")) views.push_back(scanner.capture(casting, std::atof(v2), 1));
+      for (const auto& view : views) {
+        const Transform T_part_camera = T_part_base * view.truth.T_base_camera;
+        for (std::size_t k = 0; k < view.cloud.size(); ++k)
+          if (view.cloud.is_valid(k)) raw.push_back(T_part_camera * view.cloud.points[k].cast<double>());
+      }
+      const auto fit_pre = ideal_fit(casting, pre), fit_raw = ideal_fit(casting, raw);
+      print_classes(seed, "preprocessed scene", fit_pre);
+      print_classes(seed, views.size() > 1 ? "raw capture (two views)" : "raw capture", fit_raw);
+      for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
+        const auto& roi = recipe.regions[i].roi_center_mm;
+        const Vec3 c(roi[0], roi[1], roi[2]);
+        const auto& T = capture.truth.T_base_part;
+        const auto a = test::pose_error_at(T * fit_pre.T_part_template, T, c);
+        const auto b = test::pose_error_at(T * fit_raw.T_part_template, T, c);
+        const auto w = test::pose_error_at(r->whole.T_scene_template, T, c);
+        std::printf("seed %d %-18s ideal fit: preprocessed %.4f mm %.4f deg, raw %.4f mm %.4f deg; whole-part ICP %.4f mm %.4f deg\n",
+                    seed, recipe.regions[i].name.c_str(), a.translation, fettle::rad_to_deg(a.rotation_rad), b.translation,
+                    fettle::rad_to_deg(b.rotation_rad), w.translation, fettle::rad_to_deg(w.rotation_rad));
+      }
+    }
     for (std::size_t i = 0; i < r->regions.size(); ++i) {
       const auto& rr = r->regions[i];
       if (!rr.ok()) {
