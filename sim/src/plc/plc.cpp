@@ -23,6 +23,7 @@
 
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
+#include "../cloexec.hpp"
 
 namespace fettle::sim {
 
@@ -429,7 +430,7 @@ struct PlcSimulator::Impl {
       const int n = ::select(max_fd + 1, &fds, nullptr, nullptr, &tv);
       if (n <= 0) continue;
       if (FD_ISSET(listen_fd, &fds)) {
-        const int fd = ::accept(listen_fd, nullptr, nullptr);
+        const int fd = ::accept4(listen_fd, nullptr, nullptr, SOCK_CLOEXEC);
         if (fd >= 0) clients.push_back(fd);
       }
       const auto ready = clients;
@@ -462,6 +463,7 @@ void PlcSimulator::start() {
   d.mapping = modbus_mapping_new_start_address(0, 0, 0, 0, static_cast<unsigned>(d.options.register_base),
                                                static_cast<unsigned>(plc::reg::map_size), 0, 0);
   d.listen_fd = modbus_tcp_listen(d.ctx, 8);
+  fettle::sim::detail::set_cloexec(d.listen_fd);  // Debian 12's libmodbus sets it already (tested)
   if (d.listen_fd == -1) {
     const std::string err = modbus_strerror(errno);
     modbus_mapping_free(d.mapping);

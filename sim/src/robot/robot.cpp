@@ -17,6 +17,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/drivers/robot_protocol.hpp"
+#include "../cloexec.hpp"
 
 namespace fettle::sim {
 
@@ -53,6 +54,7 @@ struct RobotSim::Impl : std::enable_shared_from_this<Impl> {
     const tcp::endpoint ep(addr, static_cast<unsigned short>(opts_.port));
     acceptor_ = tcp::acceptor(io_);
     acceptor_.open(ep.protocol(), ec);
+    if (!ec) detail::set_cloexec(acceptor_.native_handle());
     if (!ec) acceptor_.set_option(tcp::acceptor::reuse_address(true), ec);
     if (!ec) acceptor_.bind(ep, ec);
     if (!ec) acceptor_.listen(asio::socket_base::max_listen_connections, ec);
@@ -71,6 +73,7 @@ struct RobotSim::Impl : std::enable_shared_from_this<Impl> {
       if (ec) {
         self->log_->warn("simulated robot: accept failed: {}", ec.message());
       } else {
+        detail::set_cloexec(socket.native_handle());
         self->on_accept(std::move(socket));
       }
       self->accept();

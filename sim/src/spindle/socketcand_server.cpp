@@ -11,6 +11,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/spindle.hpp"
+#include "../cloexec.hpp"
 
 namespace fettle::sim {
 
@@ -146,6 +147,7 @@ struct SocketcandServer::Impl : std::enable_shared_from_this<Impl> {
     acceptor.async_accept([self = shared_from_this()](const boost::system::error_code& ec, tcp::socket socket) {
       if (self->closed || ec == boost::asio::error::operation_aborted) return;
       if (!ec) {
+        detail::set_cloexec(socket.native_handle());
         auto s = std::make_shared<Session>(self->io, std::move(socket), self->bus, self->bus_name);
         self->sessions.remove_if([](const auto& w) { return w.expired(); });
         self->sessions.push_back(s);
@@ -169,6 +171,7 @@ SocketcandServer::SocketcandServer(boost::asio::io_context& io, std::shared_ptr<
   if (ec) throw UserError("socketcand server: '" + address + "' is not an IP address");
   const tcp::endpoint ep(addr, static_cast<unsigned short>(port));
   impl_->acceptor.open(ep.protocol(), ec);
+  if (!ec) detail::set_cloexec(impl_->acceptor.native_handle());
   if (!ec) impl_->acceptor.set_option(tcp::acceptor::reuse_address(true), ec);
   if (!ec) impl_->acceptor.bind(ep, ec);
   if (!ec) impl_->acceptor.listen(tcp::acceptor::max_listen_connections, ec);
