@@ -23,12 +23,14 @@ constexpr int kBrickValues = kNodes * kNodes * kNodes;
 constexpr int kFlagWords = kCells * kCells * kCells / 64;
 constexpr double kScale = 2000.0;      ///< band level: int16 units per mm (0.5 µm steps, ±16.38 mm)
 constexpr double kFarScale = 500.0;    ///< far level: 2 µm steps, ±65.5 mm
-/// The last byte is the file format's version (2: settings with kink_jump_mm).
-constexpr std::array<char, 8> kMagic{'F', 'T', 'L', 'S', 'D', 'F', 'G', '2'};
+/// The last byte is the file format's version (2: settings with kink_jump_mm; 3: checksum and
+/// key with FNV-1a's published offset basis, a digit was missing before).
+constexpr std::array<char, 8> kMagic{'F', 'T', 'L', 'S', 'D', 'F', 'G', '3'};
 
-std::uint64_t fnv1a(const void* data, std::size_t n, std::uint64_t h = 1469598103934665603ULL) {
+/// FNV-1a, 64 bit (Fowler, Noll, Vo): offset basis 14695981039346656037, prime 1099511628211.
+std::uint64_t fnv1a(const void* data, std::size_t n, std::uint64_t h = 0xcbf29ce484222325ULL) {
   const auto* b = static_cast<const unsigned char*>(data);
-  for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ULL;
+  for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 0x100000001b3ULL;
   return h;
 }
 

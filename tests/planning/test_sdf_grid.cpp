@@ -260,6 +260,30 @@ std::filesystem::path temp_file(const std::string& name) {
   return dir / name;
 }
 
+// The cache key is FNV-1a (64 bit) over the format magic, the parameters, the sample count,
+// the samples and the normals: recomputed here with the published constants (the key once used
+// an offset basis with a digit missing; the published test vectors pin this implementation).
+TEST(SdfGridCache, TheKeyIsFnv1aOfTheInputs) {
+  auto fnv = [](std::uint64_t h, const void* data, std::size_t n) {
+    const auto* b = static_cast<const unsigned char*>(data);
+    for (std::size_t i = 0; i < n; ++i) h = (h ^ b[i]) * 1099511628211ULL;
+    return h;
+  };
+  constexpr std::uint64_t kBasis = 14695981039346656037ULL;
+  ASSERT_EQ(fnv(kBasis, "", 0), 0xcbf29ce484222325ULL);  // published test vectors
+  ASSERT_EQ(fnv(kBasis, "a", 1), 0xaf63dc4c8601ec8cULL);
+  ASSERT_EQ(fnv(kBasis, "foobar", 6), 0x85944171f73967e8ULL);
+  const std::vector<Vec3> pts{Vec3(1, 2, 3), Vec3(-4, 5.5, 6)}, nrm{Vec3::UnitZ(), Vec3::UnitX()};
+  const std::string parameters = "voxel 0.5";
+  std::uint64_t h = fnv(kBasis, "FTLSDFG3", 8);
+  h = fnv(h, parameters.data(), parameters.size());
+  const std::uint64_t n = pts.size();
+  h = fnv(h, &n, sizeof n);
+  h = fnv(h, pts.data(), pts.size() * sizeof(Vec3));
+  h = fnv(h, nrm.data(), nrm.size() * sizeof(Vec3));
+  EXPECT_EQ(sdf_grid_key(pts, nrm, parameters), h);
+}
+
 TEST(SdfGridCache, RoundTripGivesTheSameAnswers) {
   const auto& s = scene();
   const auto grid = build_grid();
