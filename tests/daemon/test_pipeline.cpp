@@ -96,6 +96,13 @@ TEST(PipelineSetup, GoldenPathIsNextToTheRecipeUnlessTheRecipeNamesOne) {
   EXPECT_EQ(golden_path(r), fs::path("/data/golden.ply"));
 }
 
+// The planner grid's cache sits next to the recipe, hidden, named after it (docs/planning.md);
+// fettled, fettle-sim soak and the demo find it through planning_cache_dir().
+TEST(PipelineSetup, PlanningCacheIsAHiddenDirectoryNextToTheRecipe) {
+  EXPECT_EQ(planning_cache_dir("/etc/fettle/parts/pump-body.toml"), fs::path("/etc/fettle/parts/.pump-body.planning-cache"));
+  EXPECT_EQ(sdf_grid_file(planning_cache_dir("parts/a.b.toml")), fs::path("parts/.a.b.planning-cache/sdf-grid.bin"));
+}
+
 TEST_F(Pipeline, NoViewsIsAnErrorValueNamingTheStep) {
   const auto r = process(*loaded_, cell_, {});
   ASSERT_FALSE(r);

@@ -124,10 +124,9 @@ planning::SignedDistance signed_distance_grid(const config::PartRecipe& recipe, 
          << gs.far_tol_mm << " jump " << gs.kink_jump_mm;
   const auto key = planning::sdf_grid_key(pts, nrm, params.str());
   fs::path dir = options.sdf_cache_dir;
-  if (dir.empty() && recipe.vision.cache && !recipe.source.empty())
-    dir = recipe.source.parent_path() / ("." + recipe.source.stem().string() + ".planning-cache");
+  if (dir.empty() && recipe.vision.cache && !recipe.source.empty()) dir = planning_cache_dir(recipe.source);
   const bool cache = !dir.empty();
-  const fs::path file = cache ? dir / "sdf-grid.bin" : fs::path{};
+  const fs::path file = cache ? sdf_grid_file(dir) : fs::path{};
   auto logger = log::get("planning");
   if (cache) {
     std::string why;
@@ -174,6 +173,12 @@ fs::path golden_path(const config::PartRecipe& recipe) {
   const std::string stem = recipe.source.empty() ? recipe.id : recipe.source.stem().string();
   return dir / (stem + ".golden.ply");
 }
+
+fs::path planning_cache_dir(const fs::path& recipe_file) {
+  return recipe_file.parent_path() / ("." + recipe_file.stem().string() + ".planning-cache");
+}
+
+fs::path sdf_grid_file(const fs::path& planning_cache_dir) { return planning_cache_dir / "sdf-grid.bin"; }
 
 LoadedRecipe load_recipe(const config::PartRecipe& recipe, const LoadOptions& options) {
   const auto t0 = Clock::now();

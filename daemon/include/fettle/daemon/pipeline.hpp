@@ -67,6 +67,13 @@ struct LoadOptions {
   std::filesystem::path template_cache_dir;
 };
 
+/// Where a recipe's planner grid is cached by default: `<recipe dir>/.<recipe stem>.planning-cache/`
+/// (the grid in it: sdf_grid_file()). fettled, fettle-sim soak (which seeds its copy of the
+/// recipe with a grid) and the demo agree on it through this.
+std::filesystem::path planning_cache_dir(const std::filesystem::path& recipe_file);
+/// The grid's file in a planning cache directory.
+std::filesystem::path sdf_grid_file(const std::filesystem::path& planning_cache_dir);
+
 /// Everything computed once per recipe.
 struct LoadedRecipe {
   config::PartRecipe recipe;
