@@ -307,7 +307,7 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
       Transform T_far = T_part_tool;
       T_far.translation() += settings.max_backoff_mm * retreat;
       Vec3 where = Vec3::Zero();
-      const double depth = tool_penetration_mm(tool, T_far, in.template_sdf, &where);
+      const double depth = tool_penetration_mm(tool, T_far, in.template_sdf, &where, region.allowance_mm);
       return region_error(region.name, "gouge",
                           "contact point " + std::to_string(i) + " at " + fmt(P) +
                               ": the tool cannot reach it without cutting the template (backed off " +
@@ -367,8 +367,11 @@ std::optional<Error> add_lift(RegionPlan& plan, const RegionInput& in, const Tra
     L.translation() += lift * up;
     return L;
   };
+  // a leg cuts where it comes nearer than the allowance by more than a back-off's tolerance (a
+  // pose backed off beside a wall parallel to `up` keeps its clearance all the way up, give or
+  // take the grid's rounding)
   auto cuts = [&](const Transform& T) {
-    return tool_penetration_mm(*in.tool, T, in.template_sdf, nullptr, clearance) + clearance > 1e-6;
+    return tool_penetration_mm(*in.tool, T, in.template_sdf, nullptr, clearance) + clearance > kBackoffTolMm;
   };
   auto refused = [&](const std::string& what) {
     return region_error(in.region->name, "gouge",
@@ -392,10 +395,11 @@ std::optional<Error> add_lift(RegionPlan& plan, const RegionInput& in, const Tra
     check(Pose::from_transform(b));
     for_each_move_sample(Pose::from_transform(a), Pose::from_transform(b), check);
     if (need <= 0.0) break;
-    if (lift >= kMaxLiftMm || round == 5)
-      return refused("no lift up to " + fmt(kMaxLiftMm, 0) + " mm keeps the allowance over the template (at " +
-                     fmt(blocked) + ", lifted " + fmt(lift, 1) + " mm)");
-    lift = std::min(kMaxLiftMm, lift + need + 1.0);  // a millimetre more than the worst sample needs
+    if (lift >= kMaxLiftMm)
+      return refused("no lift up to " + fmt(lift, 0) + " mm keeps the allowance over the template (at " + fmt(blocked) +
+                     ")");
+    // a millimetre more than the worst sample needs; the last round tries the highest lift
+    lift = round >= 4 ? kMaxLiftMm : std::min(kMaxLiftMm, lift + need + 1.0);
   }
   // the ways up and down, sampled as validation samples them
   for (const bool going_up : {true, false}) {

@@ -49,6 +49,7 @@ struct Args {
   std::string seeds = "1-3";
   double golden_spacing_mm = 0.5;
   app::ScannerOptions scanner;
+  bool log_level_given = false;  ///< --log-level was given: the logs as asked
 };
 
 std::pair<std::uint64_t, std::uint64_t> parse_seeds(const std::string& s) {
@@ -188,8 +189,9 @@ int trial(const Args& a) {
   const auto golden_samples = Casting::golden(recipe, 0).sample_golden_surface(a.golden_spacing_mm);
 
   // The pipeline's "material left" warning would land in the middle of a seed's progress line:
-  // the trial says it at the line's end and in evaluation.json instead.
-  fettle::log::get("planning")->set_level(spdlog::level::err);
+  // the trial says it at the line's end and in evaluation.json instead (unless --log-level
+  // asks for the logs).
+  if (!a.log_level_given) fettle::log::get("planning")->set_level(spdlog::level::err);
 
   std::map<std::string, TypeStats> t1, t2;  // template comparison, batch consistency
   std::optional<Casting> reference;         // the first ground casting (batch consistency)
@@ -397,7 +399,7 @@ int golden(const fs::path& part, fs::path out, double spacing_mm) {
   return 0;
 }
 
-FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common&) {
+FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common& common) {
   auto a = std::make_shared<Args>();
   auto* cmd = app.add_subcommand("trial", "Closed loop per seed: scan, plan, grind, re-scan, evaluate; the paper's tables");
   cmd->add_option("--part", a->part, "Part recipe with a [geometry] table")->required()->check(CLI::ExistingFile);
@@ -411,7 +413,11 @@ FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common&) {
   gcmd->add_option("--out", g->second, "PLY file (default: <recipe dir>/<recipe stem>.golden.ply or [template] scan)");
   gcmd->add_option("--spacing-mm", *spacing, "Sample spacing")->check(CLI::Range(0.05, 10.0));
   return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{
-      {cmd, [a] { return trial(*a); }}, {gcmd, [g, spacing] { return golden(g->first, g->second, *spacing); }}};
+      {cmd, [a, &common] {
+         a->log_level_given = common.log_level.has_value();
+         return trial(*a);
+       }},
+      {gcmd, [g, spacing] { return golden(g->first, g->second, *spacing); }}};
 });
 
 }  // namespace

@@ -1,7 +1,8 @@
-// Every socket the simulated devices open is close-on-exec. `fettle-sim soak` runs fettled as a
-// child process next to its simulated cell: a child that inherited the simulator's listening
-// and accepted sockets would keep a connection the simulated PLC or robot drops open (the
-// "PLC reboot" would not reach fettled) and keep the simulator's ports bound after it exits.
+// Every socket the simulated devices open is close-on-exec: a program started next to a
+// simulated cell (fettle-sim soak's runs, a test's, an integrator's script) that inherited the
+// simulator's listening and accepted sockets would keep a connection the simulated PLC or robot
+// drops open (the "PLC reboot" would not reach fettled) and keep the simulator's ports bound
+// after it exits. (soak also closes descriptors above 2 in fettled's child.)
 #include <gtest/gtest.h>
 
 #include <chrono>
