@@ -851,19 +851,18 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
     const double allowance = in.region->allowance_mm;
     const double pen =
         tool_penetration_mm(*in.tool, T_part_base * p.T_base_tool.to_transform(), in.template_sdf, nullptr, allowance);
-    if (pen > in.region->allowance_mm + 1e-6)
-      return fail("gouge", "the tool cuts " + fmt(pen, 3) + " mm into the template (allowed: " +
-                               fmt(in.region->allowance_mm, 3) + " mm)");
+    if (pen > allowance + 1e-6)
+      return fail("gouge", "the tool cuts " + fmt(pen, 3) + " mm into the template (allowed: " + fmt(allowance, 3) + " mm)");
     // The move onto this point (approach descents, lifts, leads): sampled every
     // kSweepStepMm with the tool of this point's region.
     if (i > 0) {
       std::optional<Error> gouge;
       for_each_move_sample(trajectory.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {
         const double pm = tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf, nullptr, allowance);
-        if (pm <= in.region->allowance_mm + 1e-6) return true;
+        if (pm <= allowance + 1e-6) return true;
         gouge = fail("gouge", "on the move from point " + std::to_string(i - 1) + " at " + fmt(m.position_mm) +
                                   " mm (base) the tool cuts " + fmt(pm, 3) + " mm into the template (allowed: " +
-                                  fmt(in.region->allowance_mm, 3) + " mm)");
+                                  fmt(allowance, 3) + " mm)");
         return false;
       });
       if (gouge) return *gouge;

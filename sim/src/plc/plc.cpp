@@ -463,7 +463,6 @@ void PlcSimulator::start() {
   d.mapping = modbus_mapping_new_start_address(0, 0, 0, 0, static_cast<unsigned>(d.options.register_base),
                                                static_cast<unsigned>(plc::reg::map_size), 0, 0);
   d.listen_fd = modbus_tcp_listen(d.ctx, 8);
-  fettle::sim::detail::set_cloexec(d.listen_fd);  // Debian 12's libmodbus sets it already (tested)
   if (d.listen_fd == -1) {
     const std::string err = modbus_strerror(errno);
     modbus_mapping_free(d.mapping);
@@ -473,6 +472,7 @@ void PlcSimulator::start() {
     throw DeviceError("simulated PLC: cannot listen on " + d.options.address + ":" + std::to_string(d.options.port) +
                       ": " + err);
   }
+  fettle::sim::detail::set_cloexec(d.listen_fd);  // Debian 12's libmodbus sets it already (tested)
   sockaddr_in addr{};
   socklen_t len = sizeof addr;
   ::getsockname(d.listen_fd, reinterpret_cast<sockaddr*>(&addr), &len);
