@@ -2,6 +2,8 @@
 // on our own random transforms with noise.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <random>
 
@@ -270,4 +272,80 @@ TEST(RegionFitness, AHoleWithNothingAboveItOrAPoseSunkUnderTheSceneStaysAMiss) {
   const auto r = fitness_at(scene, sunk, true, 40.0);
   EXPECT_GT(r.inliers, 0U);
   EXPECT_LT(r.fitness, 0.5);
+}
+
+namespace {
+
+/// A 60 x 60 mm block whose top is flat for x < 0 and rises at 8 degrees for x > 0 (as the
+/// pump body's face carrying the boss), with its four walls down to z = -10; sampled every
+/// 0.5 mm (walls every `wall_step`). `dz(x, y)` raises the top (and the walls' upper ends):
+/// a casting's form deviation, heights only.
+template <class Dz>
+Cloud slope_block(Dz dz, float wall_step) {
+  const float s = std::tan(static_cast<float>(8.0 * M_PI / 180.0));
+  const auto top = [&](float x, float y) { return (x > 0 ? s * x : 0.0f) + static_cast<float>(dz(x, y)); };
+  const Eigen::Vector3f n_slope = Eigen::Vector3f(-s, 0.0f, 1.0f).normalized();
+  Cloud c;
+  for (float x = -30; x <= 30; x += 0.5f)
+    for (float y = -30; y <= 30; y += 0.5f) {
+      c.points.emplace_back(x, y, top(x, y));
+      c.normals.emplace_back(x > 0 ? n_slope : Eigen::Vector3f::UnitZ());
+    }
+  for (float u = -30; u <= 30; u += wall_step) {
+    for (float z = -10; z < top(u, -30.0f); z += wall_step) {
+      c.points.emplace_back(u, -30.0f, z);
+      c.normals.emplace_back(-Eigen::Vector3f::UnitY());
+    }
+    for (float z = -10; z < top(u, 30.0f); z += wall_step) {
+      c.points.emplace_back(u, 30.0f, z);
+      c.normals.emplace_back(Eigen::Vector3f::UnitY());
+    }
+    for (float z = -10; z < top(-30.0f, u); z += wall_step) {
+      c.points.emplace_back(-30.0f, u, z);
+      c.normals.emplace_back(-Eigen::Vector3f::UnitX());
+    }
+    for (float z = -10; z < top(30.0f, u); z += wall_step) {
+      c.points.emplace_back(30.0f, u, z);
+      c.normals.emplace_back(Eigen::Vector3f::UnitX());
+    }
+  }
+  return c;
+}
+
+}  // namespace
+
+TEST(FineSettings, ShallowFacesGiveHeightsOnlySoAFormDeviationDoesNotSlideThePart) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto templ = PreparedCloud::prepare(slope_block([](float, float) { return 0.0; }, 0.5f), ps);
+  // The casting: its sloped face 0.2 mm higher than the template's (ramping up over the
+  // first 5 mm), at its true place (identity); its walls seen every 3 mm.
+  const Cloud scene = slope_block([](float x, float) { return 0.2 * std::clamp(x / 5.0, 0.0, 1.0); }, 3.0f);
+  FineSettings fs;
+  fs.max_distance = 2.0;
+  fs.min_distance = 1.0;
+  fs.max_iterations = 30;
+  // the slide (x, y) of the block's wall centres
+  const auto slide = [](const Transform& T) {
+    double worst = 0.0;
+    for (const fettle::Vec3& p : {fettle::Vec3(30, 0, -5), fettle::Vec3(-30, 0, -5), fettle::Vec3(0, 30, -5), fettle::Vec3(0, -30, -5)})
+      worst = std::max(worst, (T * p - p).head<2>().norm());
+    return worst;
+  };
+  // Plain point-to-plane: the raised slope reads as the block moved 0.2 / sin(8 deg) = 1.4 mm
+  // towards -x, against only the walls: it slides.
+  const auto plain = refine(templ, scene, Transform::Identity(), fs);
+  ASSERT_TRUE(plain.ok()) << plain.error().message;
+  EXPECT_GT(slide(plain->T_scene_template), 0.05);
+  // The slope's heights only: the walls alone say where the block is sideways.
+  fs.heights_only_slope_deg = 40.0;
+  const auto heights = refine(templ, scene, Transform::Identity(), fs);
+  ASSERT_TRUE(heights.ok()) << heights.error().message;
+  EXPECT_LT(slide(heights->T_scene_template), 0.01);
+  // Using every 8th point of the flat faces after the first iteration finds the same pose.
+  fs.flat_sample = 8;
+  const auto sampled = refine(templ, scene, Transform::Identity(), fs);
+  ASSERT_TRUE(sampled.ok()) << sampled.error().message;
+  EXPECT_LT(slide(sampled->T_scene_template), 0.01);
+  EXPECT_LT((sampled->T_scene_template.translation() - heights->T_scene_template.translation()).norm(), 0.01);
 }

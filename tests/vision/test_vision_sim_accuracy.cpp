@@ -111,7 +111,8 @@ IdealFit ideal_fit(const fettle::sim::Casting& casting, const std::vector<Vec3>&
     }
     if (!(g.norm() > 0.5)) continue;
     g.normalize();
-    const char* cls = g.z() > 0.9                         ? "top"
+    const char* cls = g.z() > 0.999                       ? "top"
+                      : g.z() > 0.9                       ? "shallow"
                       : g.z() < -0.9                      ? "bottom"
                       : std::abs(g.z()) >= 0.3            ? "slant"
                       : std::abs(g.x()) > std::abs(g.y()) ? (g.x() > 0 ? "wall+x" : "wall-x")
@@ -212,6 +213,17 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
                     seed, recipe.regions[i].name.c_str(), a.translation, fettle::rad_to_deg(a.rotation_rad), b.translation,
                     fettle::rad_to_deg(b.rotation_rad), w.translation, fettle::rad_to_deg(w.rotation_rad));
       }
+    }
+    if (std::getenv("FETTLE_ACCURACY_VERBOSE") != nullptr) {
+      // the whole part's rotation error about the part's axes, and its slide at the first region
+      const Transform D = capture.truth.T_base_part.inverse() * r->whole.T_scene_template;
+      const Eigen::AngleAxisd aa(D.linear());
+      const Vec3 rv = aa.axis() * fettle::rad_to_deg(aa.angle());
+      const auto& roi = recipe.regions[0].roi_center_mm;
+      const Vec3 c(roi[0], roi[1], roi[2]);
+      const Vec3 dt = D * c - c;
+      std::printf("seed %3d whole part: rotation error about x y z %+.4f %+.4f %+.4f deg, at %s %+.4f %+.4f %+.4f mm\n", seed, rv.x(), rv.y(), rv.z(),
+                  recipe.regions[0].name.c_str(), dt.x(), dt.y(), dt.z());
     }
     for (std::size_t i = 0; i < r->regions.size(); ++i) {
       const auto& rr = r->regions[i];

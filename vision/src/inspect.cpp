@@ -23,6 +23,20 @@ namespace {
 /// surfaces next to it (the flange top, the plate around it) pin its pose. The excess is
 /// still measured inside the ROI itself.
 constexpr double kRegionContextMm = 10.0;
+/// The whole part's last ICP, on the full-resolution scene: correspondences within this.
+constexpr double kFullResolutionIcpMm = 1.0;
+/// The whole part's ICP leaves out scene points this near material it trimmed (a fin's root).
+constexpr double kMaterialNeighbourhoodMm = 1.5;
+/// The whole part's ICP takes only heights from faces flatter than this
+/// (FineSettings::heights_only_slope_deg). Simulator, 16 seeds, with the castings' form
+/// deviation: 4 degrees (below the pump body's 8-degree face) turned the part 0.12 degrees
+/// about z (median); 10-40 degrees 0.05-0.06; 60 let the worst region slide 0.18 mm
+/// without form deviation against 0.15-0.17.
+constexpr double kHeightsOnlySlopeDeg = 40.0;
+/// The last ICP uses every 8th scene point on those faces after its first iteration: the
+/// vision stage on seed 1 took 0.92 s with all of them, 0.49 s so, and 16 seeds' errors were
+/// the same or smaller (FineSettings::flat_sample).
+constexpr int kFlatSample = 8;
 
 PrepareSettings whole_settings(const config::PartRecipe& recipe) {
   PrepareSettings ps;
@@ -281,6 +295,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   // fallback candidate when coarse matching failed or its ICP does not fit.
   FineSettings fs;
   fs.max_iterations = vs.icp_max_iterations;
+  fs.edge_aware = true;
   // The whole-part pose only seeds the regions (their ICP starts at 2 mm): the coarse voxel is
   // resolution enough, and the regions' ICP runs at full resolution.
   const double whole_voxel = std::max(2.0 * scene_voxel(recipe), vs.coarse_voxel_mm);
@@ -293,6 +308,8 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   // about as well sideways but down-weighted the grazing walls and left a 0.11 deg yaw
   // (8 seeds: whole-part error at the regions 0.13-0.17 mm median with Tukey).
   wfs.trim_outside_mm = 0.3;
+  wfs.trim_neighbourhood_mm = kMaterialNeighbourhoodMm;
+  wfs.heights_only_slope_deg = kHeightsOnlySlopeDeg;
   wfs.fitness_distance = std::max(whole_voxel, 3.0 * templ.whole().fine_spacing());
   std::optional<Registration> best;
   if (coarse_result) {
@@ -313,6 +330,23 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
                                         ": is it the right part (not the other hand of a pair), the right way round?"};
   Inspection out;
   out.whole = *best;
+  {
+    // Then at the scene's full resolution, from that pose: a part seen from above is fixed
+    // sideways by its edges, and a 3 mm voxel's centroid at an edge is up to a millimetre off
+    // the surface. With edge-aware residuals and the material's neighbourhood left out, the
+    // whole part's pose at the regions went from 0.043-0.094 mm to 0.025-0.033 mm and from
+    // 0.040 to 0.007 deg (median of simulator seeds 1-16; material-free castings: 0.016-0.019
+    // mm). The fitness stays the 3 mm stage's: min_part_fitness is calibrated on it.
+    FineSettings ffs = wfs;
+    ffs.max_distance = kFullResolutionIcpMm;
+    ffs.min_distance = kFullResolutionIcpMm;
+    ffs.max_iterations = 12;
+    ffs.flat_sample = kFlatSample;
+    if (auto r = refine(templ.whole(), scene, best->T_scene_template, ffs)) {
+      out.whole.T_scene_template = r->T_scene_template;
+      out.whole.iterations += r->iterations;
+    }
+  }
   timer.mark("whole-part ICP");
   // Per region: fine ICP on the region's own template at the scene's full (template)
   // resolution, then the excess material.

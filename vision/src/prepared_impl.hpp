@@ -2,6 +2,7 @@
 // PreparedCloud's data (private to fettle::vision).
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <memory>
 
 #include <pcl/point_types.h>
@@ -25,6 +26,30 @@ struct PreparedCloud::Impl {
   std::shared_ptr<FeatureTree> feature_tree;
   std::shared_ptr<const detail::NearestGrid> grid;  ///< set when settings.nearest_grid_cell > 0
   double fine_spacing = 0.0;
+  /// Per fine point at an edge of the sampled surface: the nearest fine point within two
+  /// spacings whose normal turns more than 45 degrees from its own (-1: none), and whether
+  /// the edge between them is convex. ICP measures a scene point against both tangent planes
+  /// there (edge_residual).
+  std::vector<int> edge_partner;
+  std::vector<std::uint8_t> edge_convex;
+
+  /// Point-to-plane residual of q against fine point j, edge-aware: at a convex edge the
+  /// larger of the two tangent-plane distances, at a concave one the smaller (the distance to
+  /// the surface made of the two planes). A point just inside a top face whose nearest sample
+  /// is the wall's top row otherwise reads as deep inside the wall and pulls the pose sideways.
+  /// Returns the residual and sets `j` to the point whose plane it is measured against.
+  [[nodiscard]] float edge_residual(const Eigen::Vector3f& q, int& j) const {
+    const auto k = static_cast<std::size_t>(j);
+    const float r = fine.normals[k].dot(q - fine.points[k]);
+    if (edge_partner.empty() || edge_partner[k] < 0) return r;
+    const auto e = static_cast<std::size_t>(edge_partner[k]);
+    const float re = fine.normals[e].dot(q - fine.points[e]);
+    if (edge_convex[k] != 0 ? re > r : re < r) {
+      j = edge_partner[k];
+      return re;
+    }
+    return r;
+  }
 
   /// Nearest fine point to q: the lookup grid when there is one (-1 beyond its band), else
   /// the search tree. (index, squared distance).
@@ -66,6 +91,37 @@ struct PreparedCloud::Impl {
       std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
       fine_spacing = d[d.size() / 2];
     }
+    find_edges();
+  }
+
+  void find_edges() {
+    edge_partner.assign(fine.size(), -1);
+    edge_convex.assign(fine.size(), 0);
+    if (!fine.has_normals() || !(fine_spacing > 0)) return;
+    const auto radius = static_cast<float>(2.0 * fine_spacing);
+    const float cos45 = std::sqrt(0.5f);
+    detail::parallel_for(fine.size(), detail::thread_count(settings.threads), [&](std::size_t, std::size_t b, std::size_t e) {
+      pcl::Indices idx;
+      std::vector<float> d2;
+      for (std::size_t i = b; i < e; ++i) {
+        pcl::PointXYZ q;
+        q.getVector3fMap() = fine.points[i];
+        if (fine_tree->radiusSearch(q, radius, idx, d2) <= 1) continue;
+        int best = -1;
+        float best_d2 = 0.0f;
+        for (std::size_t n = 0; n < idx.size(); ++n) {
+          const auto k = static_cast<std::size_t>(idx[n]);
+          if (fine.normals[k].dot(fine.normals[i]) >= cos45) continue;
+          if (best < 0 || d2[n] < best_d2) best = idx[n], best_d2 = d2[n];
+        }
+        if (best < 0) continue;
+        const auto k = static_cast<std::size_t>(best);
+        const Eigen::Vector3f ik = fine.points[k] - fine.points[i];
+        edge_partner[i] = best;
+        // convex: each lies below the other's tangent plane
+        edge_convex[i] = ik.dot(fine.normals[i]) - ik.dot(fine.normals[k]) < 0.0f ? 1 : 0;
+      }
+    });
   }
 };
 

@@ -9,10 +9,12 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <numbers>
 #include <random>
 #include <sstream>
 #include <string>
 #include <string_view>
+#include <unordered_set>
 
 #include <unistd.h>
 
@@ -447,6 +449,40 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
   return r;
 }
 
+namespace {
+
+/// Cells of `size` holding at least one inserted point; near(p): a point in p's cell or one
+/// of its 26 neighbours (within size, and never farther than 2·√3·size).
+class CellSet {
+ public:
+  explicit CellSet(double size) : inv_(size > 0 ? 1.0 / size : 0.0) {}
+  void clear() { cells_.clear(); }
+  [[nodiscard]] bool empty() const { return cells_.empty(); }
+  void insert(const Eigen::Vector3f& p) { cells_.insert(key(cell(p))); }
+  [[nodiscard]] bool near(const Eigen::Vector3f& p) const {
+    const Eigen::Vector3i c = cell(p);
+    for (int a = -1; a <= 1; ++a)
+      for (int b = -1; b <= 1; ++b)
+        for (int d = -1; d <= 1; ++d)
+          if (cells_.count(key(c + Eigen::Vector3i(a, b, d))) > 0) return true;
+    return false;
+  }
+
+ private:
+  [[nodiscard]] Eigen::Vector3i cell(const Eigen::Vector3f& p) const {
+    return (p.cast<double>() * inv_).array().floor().cast<int>();
+  }
+  /// 21 bits per axis: exact for cells within ±2^20 of the origin (±1.5 km at 1.5 mm).
+  static std::uint64_t key(const Eigen::Vector3i& c) {
+    auto u = [](int v) { return static_cast<std::uint64_t>(static_cast<std::int64_t>(v) + (1 << 20)) & 0x1FFFFFULL; };
+    return u(c.x()) | (u(c.y()) << 21) | (u(c.z()) << 42);
+  }
+  double inv_;
+  std::unordered_set<std::uint64_t> cells_;
+};
+
+}  // namespace
+
 Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, const Transform& initial,
                             const FineSettings& settings) {
   const auto& T = templ.impl();
@@ -475,6 +511,15 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
   // Robust weights (Tukey) at the final distance: scale from the last iteration's residuals.
   std::vector<std::vector<float>> residuals(static_cast<std::size_t>(threads));
   double tukey = std::numeric_limits<double>::infinity();
+  std::vector<std::uint8_t> outside;
+  CellSet near_material(settings.trim_neighbourhood_mm);
+  // height_cell_mm: the last full-resolution iteration's heights, and each thread's new ones
+  // heights_only_slope_deg: a template normal with a larger z than this is on such a face
+  const float heights_only_nz = settings.heights_only_slope_deg > 0
+                                    ? static_cast<float>(std::cos(settings.heights_only_slope_deg * std::numbers::pi / 180.0))
+                                    : 2.0f;
+  std::vector<std::uint8_t> on_flat;  // flat_sample: scene point i matched a flat face
+  const auto flat_sample = static_cast<std::size_t>(std::max(1, settings.flat_sample));
   for (; it < settings.max_iterations; ++it) {
     const Eigen::Matrix3f R = T_template_scene.rotation().cast<float>();
     const Eigen::Vector3f t = T_template_scene.translation().cast<float>();
@@ -485,6 +530,16 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     const bool use_grid = T.grid && d <= T.settings.nearest_grid_band;
     const bool robust = settings.robust && d <= d_min;
     const bool trim = settings.trim_outside_mm > 0 && d <= d_min;
+    // trim_neighbourhood_mm: mark the points trimmed in this full-resolution iteration, leave
+    // out their neighbourhood in the next one
+    const bool mark = trim && settings.trim_neighbourhood_mm > 0 && stride == 1;
+    const bool use_near = mark && !near_material.empty();
+    if (mark) outside.assign(scene.size(), 0);
+    // flat_sample: the first full-resolution iteration finds the points on flat faces, the
+    // next ones use every flat_sample-th of them (with that weight) and every other point
+    const bool thin_flat = settings.flat_sample > 1 && heights_only_nz <= 1.0f && stride == 1;
+    const bool sample_flat = thin_flat && !on_flat.empty();
+    if (thin_flat && on_flat.empty()) on_flat.assign(scene.size(), 0);
     detail::parallel_for(scene.size() / stride, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
       Mat6 H = Mat6::Zero();
       Vec6 g = Vec6::Zero();
@@ -493,14 +548,28 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
       res.clear();
       for (std::size_t k = b; k < e; ++k) {
         const std::size_t i = k * stride;
+        if (sample_flat && on_flat[i] != 0 && i % flat_sample != 0) continue;
         const Eigen::Vector3f q = R * scene.points[i] + t;
-        const auto [j, d2] = use_grid ? T.nearest_fine(q) : detail::nearest(*T.fine_tree, q);
+        auto [j, d2] = use_grid ? T.nearest_fine(q) : detail::nearest(*T.fine_tree, q);
         if (j < 0 || d2 > d2max) continue;
-        const Eigen::Vector3f& m = T.fine.points[static_cast<std::size_t>(j)];
-        const Eigen::Vector3f& nm = T.fine.normals[static_cast<std::size_t>(j)];
-        const double r = nm.dot(q - m);
+        // j becomes the point whose tangent plane measured r (the edge partner at an edge)
+        double r = settings.edge_aware ? T.edge_residual(q, j)
+                                       : T.fine.normals[static_cast<std::size_t>(j)].dot(q - T.fine.points[static_cast<std::size_t>(j)]);
+        const Eigen::Vector3f& nj = T.fine.normals[static_cast<std::size_t>(j)];
+        // heights_only_slope_deg: measured vertically, fixing only z, roll and pitch
+        const bool flat = nj.z() > heights_only_nz;
+        const Eigen::Vector3f nm = flat ? Eigen::Vector3f::UnitZ() : nj;
+        if (flat) r /= static_cast<double>(nj.z());
         double w = 1.0;
-        if (trim && r > settings.trim_outside_mm) continue;
+        if (trim && r > settings.trim_outside_mm) {
+          if (mark) outside[i] = 1;
+          continue;
+        }
+        if (use_near && near_material.near(scene.points[i])) continue;
+        if (thin_flat) {
+          on_flat[i] = flat ? 1 : 0;
+          if (flat && sample_flat) w = static_cast<double>(flat_sample);
+        }
         if (robust) {
           res.push_back(static_cast<float>(std::abs(r)));
           if (std::abs(r) >= tukey) continue;
@@ -528,6 +597,11 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
       Hs[th].setZero();
       gs[th].setZero();
       ns[th] = 0;
+    }
+    if (mark) {
+      near_material.clear();
+      for (std::size_t i = 0; i < scene.size(); ++i)
+        if (outside[i] != 0) near_material.insert(scene.points[i]);
     }
     if (cnt < 6)
       return Error{"vision.too_few_points", "fine registration: only " + std::to_string(cnt) +

@@ -107,6 +107,30 @@ struct FineSettings {
   /// outside, so this drops it without down-weighting the noisy grazing walls that fix the
   /// pose sideways (Tukey weights did, and cost 0.1 deg of yaw on the whole part).
   double trim_outside_mm = 0.0;
+  /// > 0 (with trim_outside_mm): at full resolution, also no weight for the points within
+  /// about this distance of a point trimmed in the previous iteration. The root of a fin or
+  /// the foot of a riser is material less than trim_outside_mm high: it pulled the whole part
+  /// 0.02-0.06 mm sideways (simulator, 16 seeds).
+  double trim_neighbourhood_mm = 0.0;
+  /// Edge-aware residuals: where the nearest template point sits at an edge of the sampled
+  /// surface (a point within two spacings whose normal turns more than 45°), the scene point
+  /// is measured against both tangent planes: the larger distance at a convex edge, the
+  /// smaller at a concave one. With plain point-to-plane a scan point just inside a top face
+  /// whose nearest template point is the wall's top row reads as deep inside the wall, and
+  /// the edges of a part seen from above are what fix it sideways.
+  bool edge_aware = false;
+  /// > 0: a template point on a face flatter than this (its normal within this many degrees
+  /// of +z, the template's up) fixes only height, roll and pitch: its residual is the
+  /// vertical distance to its tangent plane. A camera above a casting measures such faces'
+  /// heights well, but their slope turns any height deviation into a sideways one (0.1 mm on
+  /// a 5-degree slope reads as 1.1 mm): with the casting's form deviation they turned the
+  /// whole part 0.1-0.2 degrees about z (simulator, ideal fit on 4 seeds), while the walls and
+  /// edges that really fix it sideways are a few hundred points against their ten thousand.
+  double heights_only_slope_deg = 0.0;
+  /// > 1 (with heights_only_slope_deg): at full resolution, after the first iteration, only
+  /// every n-th scene point on those flat faces is used, with weight n. They fix three of the
+  /// six degrees of freedom with some hundred times the points the walls and edges have.
+  int flat_sample = 1;
   /// The reported fitness counts only the template points a camera could have seen (the rest
   /// are counted in Registration::hidden):
   /// - with a viewpoint (scene frame), not those whose outward normal turns more than
