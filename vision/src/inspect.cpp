@@ -12,6 +12,7 @@
 #include "fettle/vision/plane.hpp"
 #include "fettle/vision/preprocess.hpp"
 #include "detail.hpp"
+#include "prepared_impl.hpp"
 #include "spatial.hpp"
 
 namespace fettle::vision {
@@ -91,7 +92,14 @@ PartTemplate PartTemplate::build(const config::PartRecipe& recipe, const Cloud& 
     ps.nearest_grid_band = 2.5;
     t.regions_.push_back(RegionTemplate{region, PreparedCloud::prepare(roi, ps)});
   }
+  t.find_edges();
   return t;
+}
+
+void PartTemplate::find_edges() const {
+  // inspect()'s ICP is edge-aware: find the templates' edges at load, not in the first cycle
+  whole_.impl().find_edges();
+  for (const auto& r : regions_) r.cloud.impl().find_edges();
 }
 
 PartTemplate PartTemplate::load_or_build(const config::PartRecipe& recipe, const Cloud& golden_part,
@@ -117,6 +125,7 @@ PartTemplate PartTemplate::load_or_build(const config::PartRecipe& recipe, const
     }
     if (ok) {
       if (from_cache != nullptr) *from_cache = true;
+      t.find_edges();
       return t;
     }
   }

@@ -4,6 +4,8 @@
 #include <cmath>
 #include <cstdint>
 #include <memory>
+#include <mutex>
+#include <vector>
 
 #include <pcl/point_types.h>
 
@@ -29,9 +31,12 @@ struct PreparedCloud::Impl {
   /// Per fine point at an edge of the sampled surface: the nearest fine point within two
   /// spacings whose normal turns more than 45 degrees from its own (-1: none), and whether
   /// the edge between them is convex. ICP measures a scene point against both tangent planes
-  /// there (edge_residual).
-  std::vector<int> edge_partner;
-  std::vector<std::uint8_t> edge_convex;
+  /// there (edge_residual). Found by find_edges(), once, when first needed: most prepared
+  /// clouds (scenes, fused views, `fettle locate`) never are, and a radius search per point
+  /// of a 3 MP view costs about a second.
+  mutable std::vector<int> edge_partner;
+  mutable std::vector<std::uint8_t> edge_convex;
+  mutable std::once_flag edges_found;
 
   /// Point-to-plane residual of q against fine point j, edge-aware: at a convex edge the
   /// larger of the two tangent-plane distances, at a concave one the smaller (the distance to
@@ -91,10 +96,15 @@ struct PreparedCloud::Impl {
       std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
       fine_spacing = d[d.size() / 2];
     }
-    find_edges();
   }
 
-  void find_edges() {
+  /// Fills edge_partner and edge_convex (thread-safe; the work is done once).
+  void find_edges() const {
+    std::call_once(edges_found, [this] { find_edges_now(); });
+  }
+
+ private:
+  void find_edges_now() const {
     edge_partner.assign(fine.size(), -1);
     edge_convex.assign(fine.size(), 0);
     if (!fine.has_normals() || !(fine_spacing > 0)) return;

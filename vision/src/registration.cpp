@@ -518,6 +518,7 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
   const float heights_only_nz = settings.heights_only_slope_deg > 0
                                     ? static_cast<float>(std::cos(settings.heights_only_slope_deg * std::numbers::pi / 180.0))
                                     : 2.0f;
+  if (settings.edge_aware) T.find_edges();
   std::vector<std::uint8_t> on_flat;  // flat_sample: scene point i matched a flat face
   const auto flat_sample = static_cast<std::size_t>(std::max(1, settings.flat_sample));
   for (; it < settings.max_iterations; ++it) {

@@ -41,6 +41,7 @@ class PartTemplate {
   [[nodiscard]] const std::vector<RegionTemplate>& regions() const { return regions_; }
 
  private:
+  void find_edges() const;
   PreparedCloud whole_;
   std::vector<RegionTemplate> regions_;
 };
