@@ -354,6 +354,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     if (auto r = refine(templ.whole(), scene, best->T_scene_template, ffs)) {
       out.whole.T_scene_template = r->T_scene_template;
       out.whole.iterations += r->iterations;
+      out.whole.converged = r->converged;
     }
   }
   timer.mark("whole-part ICP");
