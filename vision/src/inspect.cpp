@@ -26,7 +26,10 @@ namespace {
 constexpr double kRegionContextMm = 10.0;
 /// The whole part's last ICP, on the full-resolution scene: correspondences within this.
 constexpr double kFullResolutionIcpMm = 1.0;
-/// The whole part's ICP leaves out scene points this near material it trimmed (a fin's root).
+/// ICP (whole part and regions) gives no weight to scene points this far outside the template
+/// (material) at its final distance...
+constexpr double kTrimOutsideMm = 0.3;
+/// ...nor to scene points this near such a point (a fin's root).
 constexpr double kMaterialNeighbourhoodMm = 1.5;
 /// The whole part's ICP takes only heights from faces flatter than this
 /// (FineSettings::heights_only_slope_deg). Simulator, 16 seeds, with the castings' form
@@ -305,8 +308,8 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   FineSettings fs;
   fs.max_iterations = vs.icp_max_iterations;
   fs.edge_aware = true;
-  // The whole-part pose only seeds the regions (their ICP starts at 2 mm): the coarse voxel is
-  // resolution enough, and the regions' ICP runs at full resolution.
+  // At the coarse voxel first (from the coarse pose up to 2x the voxel); a last stage at the
+  // scene's full resolution follows (below).
   const double whole_voxel = std::max(2.0 * scene_voxel(recipe), vs.coarse_voxel_mm);
   const Cloud scene_whole = voxel_downsample(scene, whole_voxel);
   FineSettings wfs = fs;
@@ -316,7 +319,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   // Points more than 0.3 mm outside get no weight at the final distance. Tukey weights did
   // about as well sideways but down-weighted the grazing walls and left a 0.11 deg yaw
   // (8 seeds: whole-part error at the regions 0.13-0.17 mm median with Tukey).
-  wfs.trim_outside_mm = 0.3;
+  wfs.trim_outside_mm = kTrimOutsideMm;
   wfs.trim_neighbourhood_mm = kMaterialNeighbourhoodMm;
   wfs.heights_only_slope_deg = kHeightsOnlySlopeDeg;
   wfs.fitness_distance = std::max(whole_voxel, 3.0 * templ.whole().fine_spacing());
@@ -342,10 +345,10 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   {
     // Then at the scene's full resolution, from that pose: a part seen from above is fixed
     // sideways by its edges, and a 3 mm voxel's centroid at an edge is up to a millimetre off
-    // the surface. With edge-aware residuals and the material's neighbourhood left out, the
-    // whole part's pose at the regions went from 0.043-0.094 mm to 0.025-0.033 mm and from
-    // 0.040 to 0.007 deg (median of simulator seeds 1-16; material-free castings: 0.016-0.019
-    // mm). The fitness stays the 3 mm stage's: min_part_fitness is calibrated on it.
+    // the surface. With edge-aware residuals, the material's neighbourhood left out and heights
+    // only from flat faces, the whole part's pose at the regions went from 0.043-0.094 mm and
+    // 0.032 deg to 0.034-0.039 mm and 0.008 deg (median of 50 simulator seeds, form deviation
+    // off). The fitness stays the 3 mm stage's: min_part_fitness is calibrated on it.
     FineSettings ffs = wfs;
     ffs.max_distance = kFullResolutionIcpMm;
     ffs.min_distance = kFullResolutionIcpMm;
@@ -378,7 +381,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     // their 1.5 mm neighbourhood): with Tukey weights instead, the boss's flash (a ring with
     // gaps) pulled its fit 0.16 mm sideways (median, 50 seeds); trimmed, 0.034 mm on 16 seeds
     // (Tukey and trimming together: 0.056 mm).
-    rfs.trim_outside_mm = 0.3;
+    rfs.trim_outside_mm = kTrimOutsideMm;
     rfs.trim_neighbourhood_mm = kMaterialNeighbourhoodMm;
     // The region's fitness counts the template surface the camera could see: not walls facing
     // away from it, and for a riser not the pad under it (the riser region's fitness was

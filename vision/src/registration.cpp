@@ -9,12 +9,11 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
-#include <numbers>
+#include <optional>
 #include <random>
 #include <sstream>
 #include <string>
 #include <string_view>
-#include <unordered_set>
 
 #include <unistd.h>
 
@@ -451,34 +450,24 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
 
 namespace {
 
-/// Cells of `size` holding at least one inserted point; near(p): a point in p's cell or one
-/// of its 26 neighbours (within size, and never farther than 2·√3·size).
+/// Cells of `size` holding at least one inserted point (detail::CellIndex keys); near(p): a
+/// point in p's cell or one of its 26 neighbours (within size, never farther than 2·√3·size).
 class CellSet {
  public:
-  explicit CellSet(double size) : inv_(size > 0 ? 1.0 / size : 0.0) {}
-  void clear() { cells_.clear(); }
-  [[nodiscard]] bool empty() const { return cells_.empty(); }
-  void insert(const Eigen::Vector3f& p) { cells_.insert(key(cell(p))); }
+  CellSet(double size, std::size_t expected_cells) : inv_(static_cast<float>(1.0 / size)), index_(expected_cells) {}
+  void insert(const Eigen::Vector3f& p) { index_.insert(detail::cell_key(detail::cell_of(p, inv_))); }
   [[nodiscard]] bool near(const Eigen::Vector3f& p) const {
-    const Eigen::Vector3i c = cell(p);
+    const Eigen::Vector3i c = detail::cell_of(p, inv_);
     for (int a = -1; a <= 1; ++a)
       for (int b = -1; b <= 1; ++b)
         for (int d = -1; d <= 1; ++d)
-          if (cells_.count(key(c + Eigen::Vector3i(a, b, d))) > 0) return true;
+          if (index_.find(detail::cell_key(c + Eigen::Vector3i(a, b, d))) >= 0) return true;
     return false;
   }
 
  private:
-  [[nodiscard]] Eigen::Vector3i cell(const Eigen::Vector3f& p) const {
-    return (p.cast<double>() * inv_).array().floor().cast<int>();
-  }
-  /// 21 bits per axis: exact for cells within ±2^20 of the origin (±1.5 km at 1.5 mm).
-  static std::uint64_t key(const Eigen::Vector3i& c) {
-    auto u = [](int v) { return static_cast<std::uint64_t>(static_cast<std::int64_t>(v) + (1 << 20)) & 0x1FFFFFULL; };
-    return u(c.x()) | (u(c.y()) << 21) | (u(c.z()) << 42);
-  }
-  double inv_;
-  std::unordered_set<std::uint64_t> cells_;
+  float inv_;
+  detail::CellIndex index_;
 };
 
 }  // namespace
@@ -512,11 +501,10 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
   std::vector<std::vector<float>> residuals(static_cast<std::size_t>(threads));
   double tukey = std::numeric_limits<double>::infinity();
   std::vector<std::uint8_t> outside;
-  CellSet near_material(settings.trim_neighbourhood_mm);
-  // height_cell_mm: the last full-resolution iteration's heights, and each thread's new ones
+  std::optional<CellSet> near_material;  // trim_neighbourhood_mm: the last iteration's trimmed points
   // heights_only_slope_deg: a template normal with a larger z than this is on such a face
   const float heights_only_nz = settings.heights_only_slope_deg > 0
-                                    ? static_cast<float>(std::cos(settings.heights_only_slope_deg * std::numbers::pi / 180.0))
+                                    ? static_cast<float>(std::cos(deg_to_rad(settings.heights_only_slope_deg)))
                                     : 2.0f;
   if (settings.edge_aware) T.find_edges();
   std::vector<std::uint8_t> on_flat;  // flat_sample: scene point i matched a flat face
@@ -534,7 +522,7 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     // trim_neighbourhood_mm: mark the points trimmed in this full-resolution iteration, leave
     // out their neighbourhood in the next one
     const bool mark = trim && settings.trim_neighbourhood_mm > 0 && stride == 1;
-    const bool use_near = mark && !near_material.empty();
+    const bool use_near = mark && near_material.has_value();
     if (mark) outside.assign(scene.size(), 0);
     // flat_sample: the first full-resolution iteration finds the points on flat faces, the
     // next ones use every flat_sample-th of them (with that weight) and every other point
@@ -566,7 +554,7 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
           if (mark) outside[i] = 1;
           continue;
         }
-        if (use_near && near_material.near(scene.points[i])) continue;
+        if (use_near && near_material->near(scene.points[i])) continue;
         if (thin_flat) {
           on_flat[i] = flat ? 1 : 0;
           if (flat && sample_flat) w = static_cast<double>(flat_sample);
@@ -600,9 +588,13 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
       ns[th] = 0;
     }
     if (mark) {
-      near_material.clear();
-      for (std::size_t i = 0; i < scene.size(); ++i)
-        if (outside[i] != 0) near_material.insert(scene.points[i]);
+      const auto n = static_cast<std::size_t>(std::count(outside.begin(), outside.end(), std::uint8_t{1}));
+      near_material.reset();
+      if (n > 0) {
+        near_material.emplace(settings.trim_neighbourhood_mm, n);
+        for (std::size_t i = 0; i < scene.size(); ++i)
+          if (outside[i] != 0) near_material->insert(scene.points[i]);
+      }
     }
     if (cnt < 6)
       return Error{"vision.too_few_points", "fine registration: only " + std::to_string(cnt) +
