@@ -7,7 +7,8 @@
 //
 // Seeds: FETTLE_ACCURACY_SEEDS (default 8; `make accuracy-vision` runs 50).
 //
-// FETTLE_ACCURACY_VERBOSE=1 prints every seed's region and whole-part errors.
+// FETTLE_ACCURACY_VERBOSE=1 prints every seed's region and whole-part errors, and the riser's
+// measured and true excess volume and footprint.
 //
 // FETTLE_ACCURACY_FORM=1 keeps the recipe's form deviation (the assertions then do not hold:
 // a region's true pose is no longer the part's). It prints, per region, how far the region's
@@ -34,7 +35,9 @@
 // degrees, a last full-resolution stage; the regions' own fits trimmed; flange and riser on
 // the part's pose) every region is found, and the median region errors are flange 0.034 mm,
 // riser 0.034 mm, straight flash 0.039 mm (0.008-0.009 degrees), boss 0.041 mm but 0.091
-// degrees (its own ICP); worst 0.17 mm / 0.25 degrees; the riser volume within 12.7 %. `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
+// degrees (its own ICP); worst 0.17 mm / 0.25 degrees. The riser's excess volume is within
+// 2.6 % of the truth (median +0.9 %; 2026-12-03, the scan resampled onto the template's
+// patches; it was within 12.7 %, 5 % low on the median). `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
 // remove the DISABLED_ prefix once it passes.
 #include <gtest/gtest.h>
 
@@ -268,8 +271,20 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
         surface_whole_mm[rr.name].push_back(rms(r->whole.T_scene_template));
       }
       const auto& truth = capture.truth.regions[i];
-      if (truth.type == fettle::config::RegionType::riser && truth.volume_mm3 > 0)
+      if (truth.type == fettle::config::RegionType::riser && truth.volume_mm3 > 0) {
         riser_volume_error.push_back((rr.excess.volume_mm3 - truth.volume_mm3) / truth.volume_mm3);
+        if (std::getenv("FETTLE_ACCURACY_VERBOSE") != nullptr) {
+          // the true footprint: where the casting stands above its golden top by the threshold
+          const auto& rg = recipe.regions[i];
+          double footprint = 0.0;
+          for (double x = rg.roi_center_mm[0] - 0.5 * rg.roi_size_mm[0]; x < rg.roi_center_mm[0] + 0.5 * rg.roi_size_mm[0]; x += 0.1)
+            for (double y = rg.roi_center_mm[1] - 0.5 * rg.roi_size_mm[1]; y < rg.roi_center_mm[1] + 0.5 * rg.roi_size_mm[1]; y += 0.1)
+              if (casting.surface_z_mm(x, y) - casting.golden_top_z_mm(x, y) > rg.excess_threshold_mm) footprint += 0.01;
+          std::printf("seed %3d %-18s excess volume %.1f mm3 on %.1f mm2, truth %.1f mm3 (%+.1f %%) on %.1f mm2\n", seed,
+                      rr.name.c_str(), rr.excess.volume_mm3, rr.excess.footprint_mm2, truth.volume_mm3,
+                      100.0 * riser_volume_error.back(), footprint);
+        }
+      }
     }
   }
   // The numbers, for the issue and for humans.

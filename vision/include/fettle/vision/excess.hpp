@@ -25,8 +25,9 @@ struct ExcessMaterial {
 };
 
 /// Scene points already in the template frame against a prepared template (fine points,
-/// outward normals). Volume integrates, over the template surface elements that carry
-/// excess, the largest height found above each element.
+/// outward normals). Volume integrates, over the template's surface elements, the height of
+/// the scene point nearest to each element (dropped along the normal onto the template) where
+/// that point is excess: the scan resampled onto the template, no holes between two grids.
 ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_template, const ExcessSettings& settings);
 
 /// Signed distance of each point to the template surface along the template normal of its
