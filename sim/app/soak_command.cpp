@@ -30,6 +30,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <deque>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -81,6 +82,7 @@ struct Args {
   double max_rss_growth_pct = 10.0;  ///< 0: not checked (fettled under AddressSanitizer)
   double min_ok_pct = 80.0;  ///< cycles without an injected fault that must end OK or NOK
   int keep_cycles = 30;
+  int heartbeat_timeout_ms = 1000;  ///< fettled's [plc] and [spindle] heartbeat_timeout_ms (and the robot's missed pings)
   fs::path planning_cache;  ///< a planning cache to start from (else the one next to the shipped recipe)
 };
 
@@ -131,7 +133,7 @@ std::vector<FaultKind> fault_kinds() {
 }
 
 std::string cell_toml(const fs::path& dir, const fettle::config::CellConfig& shipped, const fs::path& part, int plc,
-                      int robot, int spindle, int keep_cycles) {
+                      int robot, int spindle, int keep_cycles, int heartbeat_timeout_ms) {
   const int recipe_id = shipped.cell.recipes.front().plc_recipe_id;  // the one the simulated PLC requests
   std::ostringstream t;
   auto list = [](const auto& v) {
@@ -147,17 +149,18 @@ std::string cell_toml(const fs::path& dir, const fettle::config::CellConfig& shi
     << part.string()
     << "\"\n\n[logging]\nlevel = \"info\"\n\n"
     << "[plc]\naddress = \"127.0.0.1\"\nport = " << plc
-    << "\nunit_id = 1\nresponse_timeout_ms = 300\npoll_period_ms = 20\nheartbeat_timeout_ms = 1000\n"
+    << "\nunit_id = 1\nresponse_timeout_ms = 300\npoll_period_ms = 20\nheartbeat_timeout_ms = " << heartbeat_timeout_ms << "\n"
     << "reconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
     << "[slide]\nphoto_positions_mm = " << list(shipped.slide.photo_positions_mm) << "\ntravel_timeout_ms = 20000\n\n"
     << "[camera]\naddress = \"127.0.0.1\"\nframe_timeout_ms = 1500\nretries = 1\nexposure_us = 10000.0\n"
     << "pixel_format = \"Coord3D_C16\"\n\n"
     << "[robot]\naddress = \"127.0.0.1\"\nport = " << robot
-    << "\ncell_id = \"soak-cell\"\nreply_timeout_ms = 2000\nping_period_ms = 500\nmissed_pings = 3\n"
+    << "\ncell_id = \"soak-cell\"\nreply_timeout_ms = 2000\nping_period_ms = 500\nmissed_pings = "
+    << std::max(3, (heartbeat_timeout_ms + 499) / 500) << "\n"
     << "chunk_points = 20\nrun_timeout_ms = 120000\nreconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
     << "[spindle]\ntransport = \"socketcand\"\naddress = \"127.0.0.1\"\nport = " << spindle
     << "\ninterface = \"" << shipped.spindle.interface << "\"\nnode_id = " << shipped.spindle.node_id
-    << "\nmode = \"profile_velocity\"\nheartbeat_timeout_ms = 1000\n\n"
+    << "\nmode = \"profile_velocity\"\nheartbeat_timeout_ms = " << heartbeat_timeout_ms << "\n\n"
     << "[calibration]\nfile = \"" << fs::absolute(shipped.calibration.file).string() << "\"\n\n"
     << "[safety]\nworkspace_min_mm = " << list(s.workspace_min_mm) << "\nworkspace_max_mm = " << list(s.workspace_max_mm)
     << "\ntool_axis_cone_deg = " << std::to_string(s.tool_axis_cone_deg)
@@ -372,7 +375,7 @@ class Soak {
     cell_->on_event([this](const std::string& line) { cell_log_ << line << "\n" << std::flush; });
     cell_->start();
     std::ofstream(a_.out / "cell.toml") << cell_toml(a_.out, shipped, part, cell_->plc_port(), cell_->robot_port(),
-                                                     cell_->spindle_port(), a_.keep_cycles);
+                                                     cell_->spindle_port(), a_.keep_cycles, a_.heartbeat_timeout_ms);
     fs::remove_all(a_.out / "state");
     journal_ = std::make_unique<JournalChecker>(a_.out / "state");
     spawn();
@@ -599,8 +602,32 @@ class Soak {
     o.state = std::string(fettle::packml::name(state()));
     o.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
     o.rss_kb = rss_kb(pid_);
+    // What fettled said about it: a fault latched between two cycles is in the log before this
+    // cycle began, so from where the previous cycle's outcome was taken.
+    if (auto said = log_warnings_since_last(); !o.problems.empty() && !said.empty())
+      o.problems.push_back("fettled's warnings and errors since the previous cycle:" + said);
     for (const auto& p : o.problems) problems_.push_back("cycle " + std::to_string(index) + ": " + p);
     return o;
+  }
+
+  /// fettled's warning and error lines logged since the last call (at most the last 20), each on
+  /// its own indented line; "" if none.
+  std::string log_warnings_since_last() {
+    std::ifstream in(a_.out / "fettled.log", std::ios::binary);
+    in.seekg(static_cast<std::streamoff>(log_offset_));
+    std::deque<std::string> lines;
+    for (std::string line; std::getline(in, line);) {
+      if (in.eof()) break;  // a line still being written: read it whole next time
+      log_offset_ += line.size() + 1;
+      if (line.find(" warning [") == std::string::npos && line.find(" error [") == std::string::npos &&
+          line.find(" critical [") == std::string::npos)
+        continue;
+      lines.push_back(std::move(line));
+      if (lines.size() > 20) lines.pop_front();
+    }
+    std::string out;
+    for (const auto& l : lines) out += "\n             " + l;
+    return out;
   }
 
   void drain_journal() {
@@ -792,6 +819,7 @@ class Soak {
   std::string ended_how_;  ///< how fettled ended, once it has
   std::vector<CycleOutcome> outcomes_;
   std::vector<std::string> problems_, unexpected_faults_;
+  std::size_t log_offset_ = 0;  ///< how far log_warnings_since_last read fettled.log
 };
 
 FETTLE_COMMAND("soak", [](CLI::App& app, const fettle::cli::Common& common) {
@@ -825,6 +853,11 @@ FETTLE_COMMAND("soak", [](CLI::App& app, const fettle::cli::Common& common) {
   cmd->add_option("--planning-cache", a->planning_cache,
                   "Planning cache directory (with sdf-grid.bin) to start from when --out has none yet "
                   "(default: the one next to the shipped recipe, if any)");
+  cmd->add_option("--heartbeat-timeout-ms", a->heartbeat_timeout_ms,
+                  "fettled's [plc] and [spindle] heartbeat_timeout_ms, and [robot] missed_pings (of 500 ms) to match "
+                  "(at least 3): how long a link may be silent before it faults (longer under a sanitizer)")
+      ->capture_default_str()
+      ->check(CLI::Range(100, 60000));
   cmd->add_option("--keep-cycles", a->keep_cycles, "[records] keep_cycles for fettled (records are ~10 MB each)")
       ->capture_default_str()
       ->check(CLI::Range(5, 100000));
