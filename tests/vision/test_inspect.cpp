@@ -117,6 +117,19 @@ Cloud scan(const Transform& T_fixture_part, std::mt19937_64& rng, double sigma) 
   return part;
 }
 
+/// The template of the excess tests: the plane z = 0 from -20 to 20 mm on a 0.5 mm grid.
+PreparedCloud flat_template() {
+  Cloud plane;
+  for (float x = -20; x <= 20; x += 0.5f)
+    for (float y = -20; y <= 20; y += 0.5f) {
+      plane.points.emplace_back(x, y, 0.0f);
+      plane.normals.emplace_back(Eigen::Vector3f::UnitZ());
+    }
+  PrepareSettings ps;
+  ps.features = false;
+  return PreparedCloud::prepare(plane, ps);
+}
+
 }  // namespace
 
 TEST(Inspect, FindsEveryRegionAtTheTruePoseAndMeasuresTheRiser) {
@@ -245,15 +258,7 @@ TEST(TemplateCache, ARecipeWithItsCacheOffWritesNothingNextToIt) {
 }
 
 TEST(Excess, ABumpOnAPlaneHasItsVolumeAndHeight) {
-  Cloud plane;
-  for (float x = -20; x <= 20; x += 0.5f)
-    for (float y = -20; y <= 20; y += 0.5f) {
-      plane.points.emplace_back(x, y, 0.0f);
-      plane.normals.emplace_back(Eigen::Vector3f::UnitZ());
-    }
-  PrepareSettings ps;
-  ps.features = false;
-  const auto t = PreparedCloud::prepare(plane, ps);
+  const auto t = flat_template();
   Cloud scene;
   for (float x = -20; x <= 20; x += 0.25f)
     for (float y = -20; y <= 20; y += 0.25f) {
@@ -274,15 +279,7 @@ TEST(Excess, ABumpOnAPlaneHasItsVolumeAndHeight) {
 // a material point measured this disc 3 % large (the simulator's riser scans 2-10 % small);
 // resampling the nearest scan point onto each patch measures it within 1 %.
 TEST(Excess, ADiscSampledOnAnotherGridHasItsWholeFootprint) {
-  Cloud plane;
-  for (float x = -20; x <= 20; x += 0.5f)
-    for (float y = -20; y <= 20; y += 0.5f) {
-      plane.points.emplace_back(x, y, 0.0f);
-      plane.normals.emplace_back(Eigen::Vector3f::UnitZ());
-    }
-  PrepareSettings ps;
-  ps.features = false;
-  const auto t = PreparedCloud::prepare(plane, ps);
+  const auto t = flat_template();
   const double radius = 8.0, height = 3.0;
   const Eigen::Rotation2Dd turn(fettle::deg_to_rad(3.0));
   for (const Eigen::Vector2d& offset : {Eigen::Vector2d(0.21, 0.13), Eigen::Vector2d(0.25, 0.25), Eigen::Vector2d(0.0, 0.0)}) {
