@@ -349,3 +349,54 @@ TEST(FineSettings, ShallowFacesGiveHeightsOnlySoAFormDeviationDoesNotSlideThePar
   EXPECT_LT(slide(sampled->T_scene_template), 0.01);
   EXPECT_LT((sampled->T_scene_template.translation() - heights->T_scene_template.translation()).norm(), 0.01);
 }
+
+namespace {
+
+/// A 60 x 60 mm plate (z = 0) with a shallow round hump, `height` mm high with a 10 mm
+/// sigma, centred at (hump_x, 0); sampled every 0.5 mm, normals from the hump's slope.
+Cloud humped_plate(double height, double hump_x) {
+  Cloud c;
+  for (float x = -30; x <= 30; x += 0.5f)
+    for (float y = -30; y <= 30; y += 0.5f) {
+      const double u = x - hump_x;
+      const double h = height * std::exp(-(u * u + y * y) / 200.0);
+      // dh/dx, dh/dy
+      const double hx = -h * u / 100.0, hy = -h * y / 100.0;
+      c.points.emplace_back(x, y, static_cast<float>(h));
+      c.normals.emplace_back(Eigen::Vector3d(-hx, -hy, 1.0).normalized().cast<float>());
+    }
+  return c;
+}
+
+}  // namespace
+
+TEST(FineSettings, ADirectionTheSurfaceHardlyFixesKeepsTheInitialPose) {
+  PrepareSettings ps;
+  ps.features = false;
+  // Only a 0.05 mm hump says where the plate is sideways (and nothing how it is turned about
+  // z). The scene's hump sits 1 mm further along x: a weak pull, as a boss's flash turned the
+  // boss about its axis.
+  const auto templ = PreparedCloud::prepare(humped_plate(0.05, 0.0), ps);
+  const Cloud scene = humped_plate(0.05, 1.0);
+  // The start (the whole part's pose) is 0.3 mm high and tilted 0.3 deg about y: fixed directions.
+  Transform initial = Transform::Identity();
+  initial.linear() = Eigen::AngleAxisd(fettle::deg_to_rad(0.3), fettle::Vec3::UnitY()).toRotationMatrix();
+  initial.translation() = fettle::Vec3(0.0, 0.0, -0.3);
+  FineSettings fs;
+  fs.max_distance = 2.0;
+  fs.min_distance = 1.0;
+  fs.max_iterations = 40;
+  // Plain: the hump pulls the plate along x.
+  const auto plain = refine(templ, scene, initial, fs);
+  ASSERT_TRUE(plain.ok()) << plain.error().message;
+  EXPECT_GT(std::abs(plain->T_scene_template.translation().x()), 0.1);
+  // With the remapping: x stays where the start put it (0), height and tilt are fixed.
+  fs.degenerate_ratio = 1e-4;
+  const auto kept = refine(templ, scene, initial, fs);
+  ASSERT_TRUE(kept.ok()) << kept.error().message;
+  const Transform& T = kept->T_scene_template;
+  EXPECT_LT(std::abs(T.translation().x()), 0.01);
+  EXPECT_LT(std::abs(T.translation().y()), 0.01);
+  EXPECT_LT(std::abs(T.translation().z()), 0.005);
+  EXPECT_LT(fettle::rad_to_deg(Eigen::AngleAxisd(T.linear()).angle()), 0.005);
+}

@@ -30,12 +30,22 @@
 //
 // FETTLE_ACCURACY_FIRST=<seed>: start at this seed (default 1).
 //
+// FETTLE_ACCURACY_VIEWS2=<slide mm>: a second view at this slide position, both fused and
+// inspected as fettled does with two photo positions (fuse_views, then the unorganized
+// path). FETTLE_ACCURACY_UNORGANIZED=1: the one view through the unorganized path. 2026-12-03,
+// 8 seeds, region medians: one view organized 0.034-0.047 mm; the same view unorganized
+// 0.047-0.088; two views (second at 120 mm) fused 0.043-0.092: the unorganized path (voxel
+// grid, then k-nearest outlier removal on the voxels) costs the accuracy, not the fusion
+// (docs/vision.md "Not done yet").
+//
 // DISABLED (not run by ctest / CI) because the vision stage does not meet it yet: on 50 seeds
-// (2026-12-02: the whole-part ICP edge-aware, heights only from faces flatter than 40
-// degrees, a last full-resolution stage; the regions' own fits trimmed; flange and riser on
-// the part's pose) every region is found, and the median region errors are flange 0.034 mm,
-// riser 0.034 mm, straight flash 0.039 mm (0.008-0.009 degrees), boss 0.041 mm but 0.091
-// degrees (its own ICP); worst 0.17 mm / 0.25 degrees. The riser's excess volume is within
+// (2026-12-03: the whole-part ICP edge-aware, heights only from faces flatter than 40
+// degrees, a last full-resolution stage; the regions' own fits trimmed and kept at the whole
+// part's pose along directions their surfaces do not fix; flange and riser on the part's
+// pose) every region is found, and the median region errors are flange 0.034 mm, riser
+// 0.034 mm, straight flash 0.039 mm, boss 0.047 mm, 0.008-0.019 degrees: all medians met
+// (the boss was 0.091 degrees before it kept the part's turn about its axis); worst 0.080
+// degrees (met) but 0.17 mm (not met: seed 8's data, see docs/vision.md). The riser's excess volume is within
 // 2.6 % of the truth (median +0.9 %; 2026-12-03, the scan resampled onto the template's
 // patches; it was within 12.7 %, 5 % low on the median). `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
 // remove the DISABLED_ prefix once it passes.
@@ -53,6 +63,7 @@
 #include "fettle/config/load.hpp"
 #include "fettle/sim/sim.hpp"
 #include "fettle/vision/inspect.hpp"
+#include "fettle/vision/multiview.hpp"
 #include "test_support.hpp"
 
 using namespace fettle::vision;
@@ -183,7 +194,21 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
       body = casting;
       body->remove_all_material();
     }
-    const auto r = inspect(recipe, templ, capture.cloud, capture.truth.T_base_camera);
+    const auto r = [&]() -> fettle::Result<Inspection> {
+      const char* v2 = std::getenv("FETTLE_ACCURACY_VIEWS2");
+      if (v2 == nullptr && std::getenv("FETTLE_ACCURACY_UNORGANIZED") != nullptr)
+        return inspect(recipe, templ, transformed(to_cloud(capture.cloud), capture.truth.T_base_camera));
+      if (v2 == nullptr) return inspect(recipe, templ, capture.cloud, capture.truth.T_base_camera);
+      // the cell's way with two photo positions: fused (as fettled's pipeline), then inspected
+      const auto second = scanner.capture(casting, std::atof(v2), 1);
+      std::vector<View> views(2);
+      views[0].cloud = to_cloud(capture.cloud);
+      views[1].cloud = to_cloud(second.cloud);
+      views[1].T_first_view = capture.truth.T_base_camera.inverse() * second.truth.T_base_camera;
+      auto fused = fuse_views(views, FuseSettings{});
+      if (!fused) return fused.error();
+      return inspect(recipe, templ, transformed(fused->cloud, capture.truth.T_base_camera));
+    }();
     if (!r) {
       ADD_FAILURE() << "seed " << seed << ": " << r.error().message;
       ++failures;
@@ -322,4 +347,30 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
   }
   EXPECT_EQ(riser_volume_error.size(), static_cast<std::size_t>(seeds - failures / 4));
   EXPECT_LE(worst_volume, 0.05);
+}
+
+// The boss is a cylinder on the tilted face: turning about the face's normal moves almost
+// none of its surface, and its own ICP turned it 0.16, 0.21 and 0.19 deg on these seeds
+// (pulled by its flash) while the whole part's pose was within 0.01 deg. It now keeps the
+// whole part's turn in that direction (FineSettings::degenerate_ratio) and fixes the rest.
+TEST(VisionSimAccuracy, TheBossKeepsThePartsTurnAboutItsAxis) {
+  const auto recipe = accuracy_recipe();
+  const auto templ = golden_template(recipe);
+  const fettle::sim::Scanner scanner{fettle::sim::ScannerConfig{}};
+  std::size_t boss = recipe.regions.size();
+  for (std::size_t i = 0; i < recipe.regions.size(); ++i)
+    if (recipe.regions[i].name == "boss-circle") boss = i;
+  ASSERT_LT(boss, recipe.regions.size());
+  const auto& roi = recipe.regions[boss].roi_center_mm;
+  for (const int seed : {6, 9, 23}) {
+    const auto casting = fettle::sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
+    const auto capture = scanner.capture(casting, 0.0);
+    const auto r = inspect(recipe, templ, capture.cloud, capture.truth.T_base_camera);
+    ASSERT_TRUE(r.ok()) << "seed " << seed << ": " << r.error().message;
+    const auto& rr = r->regions[boss];
+    ASSERT_TRUE(rr.ok()) << "seed " << seed << ": " << rr.error->message;
+    const auto e = test::pose_error_at(rr.registration.T_scene_template, capture.truth.T_base_part, Vec3(roi[0], roi[1], roi[2]));
+    EXPECT_LE(fettle::rad_to_deg(e.rotation_rad), 0.05) << "seed " << seed;
+    EXPECT_LE(e.translation, 0.1) << "seed " << seed;
+  }
 }

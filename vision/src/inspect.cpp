@@ -31,6 +31,12 @@ constexpr double kFullResolutionIcpMm = 1.0;
 constexpr double kTrimOutsideMm = 0.3;
 /// ...nor to scene points this near such a point (a fin's root).
 constexpr double kMaterialNeighbourhoodMm = 1.5;
+/// A region's own ICP takes no step along directions its surfaces do not fix
+/// (FineSettings::degenerate_ratio). The boss, a cylinder on an 8-degree face: turning about
+/// the face's normal has 5e-5 or less of the largest curvature, its sideways slides 1.8e-4 or
+/// more (simulator, 50 seeds); its own fit turned 0.09 deg (median, worst 0.25) about it,
+/// pulled by its flash; kept at the whole part's turn, 0.019 deg (worst 0.081).
+constexpr double kDegenerateRatio = 1e-4;
 /// The whole part's ICP takes only heights from faces flatter than this
 /// (FineSettings::heights_only_slope_deg). Simulator, 16 seeds, with the castings' form
 /// deviation: 4 degrees (below the pump body's 8-degree face) turned the part 0.12 degrees
@@ -383,6 +389,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     // (Tukey and trimming together: 0.056 mm).
     rfs.trim_outside_mm = kTrimOutsideMm;
     rfs.trim_neighbourhood_mm = kMaterialNeighbourhoodMm;
+    rfs.degenerate_ratio = kDegenerateRatio;
     // The region's fitness counts the template surface the camera could see: not walls facing
     // away from it, and for a riser not the pad under it (the riser region's fitness was
     // 0.51-0.59 on 7 of 8 simulated castings at a good pose when they counted as misses). Only

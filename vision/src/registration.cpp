@@ -18,6 +18,7 @@
 #include <unistd.h>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <Eigen/Geometry>
 #include <pcl/features/fpfh_omp.h>
 #include <pcl/features/normal_3d_omp.h>
@@ -507,6 +508,19 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
                                     ? static_cast<float>(std::cos(deg_to_rad(settings.heights_only_slope_deg)))
                                     : 2.0f;
   if (settings.edge_aware) T.find_edges();
+  // degenerate_ratio: steps about the template's centroid c, rotations scaled by its RMS
+  // radius L (mm), so that rotation and translation eigenvalues compare
+  const bool remap = settings.degenerate_ratio > 0;
+  Eigen::Vector3f c = Eigen::Vector3f::Zero();
+  double L = 1.0;
+  if (remap) {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (const auto& p : T.fine.points) sum += p.cast<double>();
+    c = (sum / static_cast<double>(T.fine.size())).cast<float>();
+    double s2 = 0;
+    for (const auto& p : T.fine.points) s2 += (p - c).squaredNorm();
+    L = std::max(1e-6, std::sqrt(s2 / static_cast<double>(T.fine.size())));
+  }
   std::vector<std::uint8_t> on_flat;  // flat_sample: scene point i matched a flat face
   const auto flat_sample = static_cast<std::size_t>(std::max(1, settings.flat_sample));
   for (; it < settings.max_iterations; ++it) {
@@ -566,7 +580,7 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
           w = (1.0 - u * u) * (1.0 - u * u);
         }
         Vec6 J;
-        J.head<3>() = q.cross(nm).cast<double>();
+        J.head<3>() = (q - c).cross(nm).cast<double>();
         J.tail<3>() = nm.cast<double>();
         H.noalias() += w * J * J.transpose();
         g.noalias() += (w * r) * J;
@@ -614,19 +628,36 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     // A small floor on the diagonal (relative to the best-constrained rotation and translation)
     // leaves such directions where the whole-part pose put them, and no step may exceed the
     // correspondence distance.
-    const double floor_r = 1e-4 * H.diagonal().head<3>().maxCoeff();
-    const double floor_t = 1e-4 * H.diagonal().tail<3>().maxCoeff();
-    for (int k = 0; k < 3; ++k) {
-      H(k, k) += floor_r;
-      H(k + 3, k + 3) += floor_t;
+    Vec6 x;
+    if (remap) {
+      // degenerate_ratio: solve in the eigenbasis of the scaled normal matrix, no step along
+      // directions below the ratio
+      Vec6 scale;
+      scale << 1.0 / L, 1.0 / L, 1.0 / L, 1.0, 1.0, 1.0;
+      const Mat6 H_scaled = scale.asDiagonal() * H * scale.asDiagonal();
+      const Eigen::SelfAdjointEigenSolver<Mat6> eig(H_scaled);
+      const Vec6 lambda = eig.eigenvalues();
+      const Vec6 gv = eig.eigenvectors().transpose() * (scale.asDiagonal() * g);
+      Vec6 y = Vec6::Zero();
+      for (int k = 0; k < 6; ++k)
+        if (lambda(k) > settings.degenerate_ratio * lambda(5)) y(k) = -gv(k) / lambda(k);
+      x = scale.asDiagonal() * (eig.eigenvectors() * y);
+    } else {
+      const double floor_r = 1e-4 * H.diagonal().head<3>().maxCoeff();
+      const double floor_t = 1e-4 * H.diagonal().tail<3>().maxCoeff();
+      for (int k = 0; k < 3; ++k) {
+        H(k, k) += floor_r;
+        H(k + 3, k + 3) += floor_t;
+      }
+      x = H.ldlt().solve(-g);
     }
-    Vec6 x = H.ldlt().solve(-g);
     if (!x.allFinite()) break;
     if (const double tn = x.tail<3>().norm(); tn > d) x *= d / tn;
     Transform step = Transform::Identity();
     const double angle = x.head<3>().norm();
     if (angle > 0) step.linear() = Eigen::AngleAxisd(angle, x.head<3>() / angle).toRotationMatrix();
-    step.translation() = x.tail<3>();
+    // about c: p -> R (p - c) + c + t (c = 0 without degenerate_ratio)
+    step.translation() = x.tail<3>() + c.cast<double>() - step.linear() * c.cast<double>();
     T_template_scene = step * T_template_scene;
     const bool small = x.tail<3>().norm() < settings.convergence_translation * voxel && angle < settings.convergence_rotation_rad;
     if (d <= d_min) ++at_min;

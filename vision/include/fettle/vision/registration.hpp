@@ -140,6 +140,14 @@ struct FineSettings {
   ///   a third of its pad). At most half of the template is left out this way, so a pose
   ///   sunk into the scene cannot look good.
   std::optional<Eigen::Vector3f> viewpoint;
+  /// > 0: directions of the pose the data do not fix stay where `initial` put them. Each
+  /// step is solved about the template's centroid with rotations scaled by the template's RMS
+  /// radius; a direction whose curvature (eigenvalue of the 6x6 normal matrix) is below this
+  /// share of the largest gets no step (Zhang et al., "On degeneration of optimization-based
+  /// state estimation problems", ICRA 2016: solution remapping). A boss is a cylinder on a
+  /// face: turning about its axis moves none of its surface, so only noise and its flash's
+  /// gaps turned it (0.1-0.25 deg from the whole part's pose).
+  double degenerate_ratio = 0.0;
   double max_view_angle_deg = 75.0;
   double covered_mm = 0.0;
   int threads = 0;
