@@ -208,6 +208,8 @@ int trial(const Args& a) {
     sj["seed"] = seed;
     std::fprintf(stderr, "[%zu/%zu] seed %llu: scan", done + 1, count, static_cast<unsigned long long>(seed));
     Casting casting = Casting::make(recipe, seed);
+    Casting body = casting;  // the casting without its material: where the planner should put each region
+    body.remove_all_material();
     const auto captures = scan_all(scanner, casting, 0);
     auto out = fettle::daemon::process(loaded, cell, to_views(captures),
                                        [](std::size_t, std::size_t, const std::string& step) {
@@ -304,6 +306,40 @@ int trial(const Args& a) {
       rj["max_gouge_depth_mm"] = gmax;
       if (deepest != nullptr)  // where: part frame of the casting (its true pose)
         rj["deepest_gouge_mm"] = {deepest->position_mm.x(), deepest->position_mm.y(), deepest->position_mm.z()};
+      // Where the vision stage put the region: its pose's error against the casting's true
+      // pose, at the ROI centre (with the recipe's form deviation a region's true local pose
+      // differs from the part's by up to ~0.2 mm / 0.5 deg, so this is not the vision test's
+      // error), beside the whole part's pose at the same point.
+      for (const auto& rr : out->inspection.regions)
+        if (rr.name == region.name && rr.ok()) {
+          const fettle::Vec3 c(region.roi_center_mm[0], region.roi_center_mm[1], region.roi_center_mm[2]);
+          const auto at_roi = [&](const fettle::Transform& T_base_region) {
+            const fettle::Transform D = casting.T_base_part().inverse() * T_base_region;
+            const fettle::Vec3 dt = D * c - c;
+            return json{{"offset_mm", {dt.x(), dt.y(), dt.z()}},
+                        {"mm", dt.norm()},
+                        {"deg", fettle::rad_to_deg(Eigen::AngleAxisd(D.linear()).angle())}};
+          };
+          // RMS distance of the region's template (every 4th point), placed with a pose, to the
+          // true material-free surface: the measure that holds with form deviation
+          const auto& fine = loaded.templ.regions()[r].cloud.fine();
+          const auto rms = [&](const fettle::Transform& T_base_region) {
+            const fettle::Transform T_part_template = casting.T_base_part().inverse() * T_base_region;
+            double sum = 0.0;
+            std::size_t n = 0;
+            for (std::size_t k = 0; k < fine.size(); k += 4, ++n) {
+              const double d = body.distance_to_surface_mm(T_part_template * fine.points[k].cast<double>());
+              sum += d * d;
+            }
+            return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
+          };
+          rj["vision"] = {{"region_pose_vs_true_part", at_roi(rr.registration.T_scene_template)},
+                          {"whole_part_pose_vs_true_part", at_roi(out->inspection.whole.T_scene_template)},
+                          {"template_rms_to_true_surface_mm",
+                           {{"region_pose", rms(rr.registration.T_scene_template)},
+                            {"whole_part_pose", rms(out->inspection.whole.T_scene_template)}}},
+                          {"fitness", rr.registration.fitness}};
+        }
       for (const auto& m : out->regions)
         if (m.name == region.name) {
           rj["plan"] = {{"excess_points", m.excess_points},

@@ -72,6 +72,15 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
     EXPECT_LE(left, 0.3) << name;  // the planner's leave_unreachable_mm
     EXPECT_EQ(r.at("plan").contains("material_left_at_mm"), left > 0.0) << name;
     EXPECT_TRUE(r.contains("template_comparison")) << name;
+    // where the vision stage put the region: its template within 0.2 mm RMS of the casting's
+    // true surface (seed 1, 2026-12-03: 0.06-0.12 mm with the recipe's form deviation), the
+    // pose errors at the ROI centre given
+    ASSERT_TRUE(r.contains("vision")) << name;
+    const auto& v = r.at("vision");
+    EXPECT_LT(v.at("template_rms_to_true_surface_mm").at("region_pose").get<double>(), 0.2) << name;
+    EXPECT_LT(v.at("template_rms_to_true_surface_mm").at("whole_part_pose").get<double>(), 0.2) << name;
+    EXPECT_EQ(v.at("region_pose_vs_true_part").at("offset_mm").size(), 3U) << name;
+    EXPECT_GE(v.at("region_pose_vs_true_part").at("mm").get<double>(), 0.0) << name;
     const double depth = r.at("max_gouge_depth_mm").get<double>();
     deepest = std::max(deepest, depth);
     if (r.at("gouges").get<long>() == 0) {
