@@ -324,14 +324,7 @@ int trial(const Args& a) {
           // true material-free surface: the measure that holds with form deviation
           const auto& fine = loaded.templ.regions()[r].cloud.fine();
           const auto rms = [&](const fettle::Transform& T_base_region) {
-            const fettle::Transform T_part_template = casting.T_base_part().inverse() * T_base_region;
-            double sum = 0.0;
-            std::size_t n = 0;
-            for (std::size_t k = 0; k < fine.size(); k += 4, ++n) {
-              const double d = body.distance_to_surface_mm(T_part_template * fine.points[k].cast<double>());
-              sum += d * d;
-            }
-            return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
+            return body.rms_distance_to_surface_mm(fine.points, casting.T_base_part().inverse() * T_base_region, 4);
           };
           rj["vision"] = {{"region_pose_vs_true_part", at_roi(rr.registration.T_scene_template)},
                           {"whole_part_pose_vs_true_part", at_roi(out->inspection.whole.T_scene_template)},

@@ -327,6 +327,16 @@ std::pair<Vec3, Vec3> Casting::bounds_part_mm() const {
   return {Vec3(s.x0, s.y0, 0.0), Vec3(s.x0 + s.nx * s.pitch, s.y0 + s.ny * s.pitch, top)};
 }
 double Casting::distance_to_surface_mm(const Vec3& p_part) const { return model_->surface.distance(p_part); }
+double Casting::rms_distance_to_surface_mm(const std::vector<Eigen::Vector3f>& points, const Transform& T_part_points,
+                                           std::size_t stride) const {
+  double sum = 0.0;
+  std::size_t n = 0;
+  for (std::size_t k = 0; k < points.size(); k += std::max<std::size_t>(1, stride), ++n) {
+    const double d = distance_to_surface_mm(T_part_points * points[k].cast<double>());
+    sum += d * d;
+  }
+  return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
+}
 double Casting::distance_to_golden_mm(const Vec3& p_part) const { return model_->nominal.distance(p_part); }
 double Casting::golden_top_z_mm(double x_mm, double y_mm) const { return model_->nominal_top(x_mm, y_mm); }
 void Casting::take_off_fixture() { model_->on_fixture = false; }

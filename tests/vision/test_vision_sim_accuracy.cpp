@@ -283,15 +283,7 @@ TEST(VisionSimAccuracy, DISABLED_SeededCastingsArePlacedWithin50MicronsAndFiveHu
         // the walls show a slide sideways)
         const auto& fine = templ.regions()[i].cloud.fine();
         const auto rms = [&](const Transform& T_scene_region) {
-          const Transform T_part_template = capture.truth.T_base_part.inverse() * T_scene_region;
-          double sum = 0.0;
-          std::size_t n = 0;
-          for (std::size_t k = 0; k < fine.size(); k += 4) {
-            const double d = body->distance_to_surface_mm(T_part_template * fine.points[k].cast<double>());
-            sum += d * d;
-            ++n;
-          }
-          return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
+          return body->rms_distance_to_surface_mm(fine.points, capture.truth.T_base_part.inverse() * T_scene_region, 4);
         };
         surface_region_mm[rr.name].push_back(rms(rr.registration.T_scene_template));
         surface_whole_mm[rr.name].push_back(rms(r->whole.T_scene_template));

@@ -625,9 +625,9 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
     }
     // A region that is mostly one flat face does not constrain sliding along it (nor turning
     // about its normal): H is near singular there and the plain solve returned steps of 1e12 mm.
-    // A small floor on the diagonal (relative to the best-constrained rotation and translation)
-    // leaves such directions where the whole-part pose put them, and no step may exceed the
-    // correspondence distance.
+    // With degenerate_ratio such directions get no step at all; without it, a small floor on
+    // the diagonal (relative to the best-constrained rotation and translation) keeps them
+    // near where the whole-part pose put them. No step may exceed the correspondence distance.
     Vec6 x;
     if (remap) {
       // degenerate_ratio: solve in the eigenbasis of the scaled normal matrix, no step along

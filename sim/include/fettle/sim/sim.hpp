@@ -98,6 +98,10 @@ class Casting {
   [[nodiscard]] std::vector<SurfacePoint> sample_golden_surface(double spacing_mm) const;
   /// Distance of a part-frame point to the current (as-cast or ground) surface.
   [[nodiscard]] double distance_to_surface_mm(const Vec3& p_part) const;
+  /// RMS of distance_to_surface_mm over every `stride`-th of `points`, mapped into the part
+  /// frame by T_part_points (how close a template placed with some pose lies to this surface).
+  [[nodiscard]] double rms_distance_to_surface_mm(const std::vector<Eigen::Vector3f>& points,
+                                                  const Transform& T_part_points, std::size_t stride = 1) const;
   /// Distance of a part-frame point to the golden surface.
   [[nodiscard]] double distance_to_golden_mm(const Vec3& p_part) const;
   /// Top of the golden body at (x, y), part frame (NaN off the body).
