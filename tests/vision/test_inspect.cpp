@@ -119,15 +119,9 @@ Cloud scan(const Transform& T_fixture_part, std::mt19937_64& rng, double sigma) 
 
 /// The template of the excess tests: the plane z = 0 from -20 to 20 mm on a 0.5 mm grid.
 PreparedCloud flat_template() {
-  Cloud plane;
-  for (float x = -20; x <= 20; x += 0.5f)
-    for (float y = -20; y <= 20; y += 0.5f) {
-      plane.points.emplace_back(x, y, 0.0f);
-      plane.normals.emplace_back(Eigen::Vector3f::UnitZ());
-    }
   PrepareSettings ps;
   ps.features = false;
-  return PreparedCloud::prepare(plane, ps);
+  return PreparedCloud::prepare(test::flat_square(20.0f), ps);
 }
 
 }  // namespace

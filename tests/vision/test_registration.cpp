@@ -174,12 +174,7 @@ namespace {
 /// (outward normals), as a golden template has them. Fewer than 20000 points: the fitness
 /// counts every one of them.
 Cloud pad_template() {
-  Cloud c;
-  for (float x = -25; x <= 25; x += 0.5f)
-    for (float y = -25; y <= 25; y += 0.5f) {
-      c.points.emplace_back(x, y, 0.0f);
-      c.normals.emplace_back(Eigen::Vector3f::UnitZ());
-    }
+  Cloud c = test::flat_square(25.0f);
   for (float s = -25; s <= 25; s += 0.5f)
     for (float z = -10; z < 0; z += 0.5f) {
       c.points.emplace_back(s, -25.0f, z);

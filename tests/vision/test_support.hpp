@@ -54,6 +54,18 @@ inline Transform random_transform(std::mt19937_64& rng, double angle_rad, double
   return T;
 }
 
+/// The square z = 0, |x| and |y| <= half_mm, sampled every 0.5 mm, normals +z (a template's
+/// flat face).
+inline Cloud flat_square(float half_mm) {
+  Cloud c;
+  for (float x = -half_mm; x <= half_mm; x += 0.5f)
+    for (float y = -half_mm; y <= half_mm; y += 0.5f) {
+      c.points.emplace_back(x, y, 0.0f);
+      c.normals.emplace_back(Eigen::Vector3f::UnitZ());
+    }
+  return c;
+}
+
 inline Cloud with_noise(const Cloud& c, double sigma, std::mt19937_64& rng) {
   std::normal_distribution<float> g(0.0f, static_cast<float>(sigma));
   Cloud out;
