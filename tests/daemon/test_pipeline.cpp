@@ -230,6 +230,34 @@ TEST_F(Pipeline, VerifySaysRegrindBeforeGrindingAndOkAfterAnExactGrind) {
   EXPECT_TRUE(after->regrind_regions().empty());
 }
 
+// A region whose ROI the verification scan does not see is not judged OK on no points: the
+// flange's box before 2026-12-03 (z 40-60 mm, the wall below the flange top, seen edge-on from
+// above) held 0-2 points after grinding and read OK.
+TEST_F(Pipeline, VerifyCallsARegionTheScanDoesNotSeeNokNotOk) {
+  LoadedRecipe loaded = *loaded_;
+  auto flange = std::find_if(loaded.recipe.regions.begin(), loaded.recipe.regions.end(),
+                             [](const config::Region& r) { return r.name == "flange-ring"; });
+  ASSERT_NE(flange, loaded.recipe.regions.end());
+  flange->roi_center_mm = {0.0, 0.0, 50.0};
+  flange->roi_size_mm = {110.0, 110.0, 20.0};
+  auto casting = sim::Casting::make(loaded.recipe, 4);
+  casting.remove_all_material();
+  const sim::Scanner scanner(small_scanner());
+  const auto r = verify(loaded, cell_, views_of(scanner.capture_all(casting)));
+  ASSERT_TRUE(r) << r.error().message;
+  EXPECT_EQ(r->verdict, Verdict::nok);
+  for (const auto& v : r->regions) {
+    if (v.name == "flange-ring") {
+      EXPECT_LT(v.roi_points, static_cast<std::size_t>(loaded.recipe.vision.min_region_points));
+      EXPECT_EQ(v.verdict, Verdict::nok);
+      EXPECT_NE(v.reason.find("cannot be verified"), std::string::npos) << v.reason;
+      EXPECT_NE(v.reason.find("roi_size_mm"), std::string::npos) << v.reason;
+    } else {
+      EXPECT_EQ(v.verdict, Verdict::ok) << v.name << ": " << v.reason;
+    }
+  }
+}
+
 }  // namespace
 
 }  // namespace fettle::daemon
