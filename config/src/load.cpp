@@ -123,6 +123,7 @@ void read_part(TableReader& root, PartRecipe& part) {
     t->number("gouge_depth_mm", v.gouge_depth_mm, {0.0, 50.0});
     t->number("nok_max_share_gouged_pct", v.nok_max_share_gouged_pct, {0.0, 100.0});
     t->number("max_regrind_height_mm", v.max_regrind_height_mm, {0.0, 100.0});
+    t->number("jump_edge_mm", v.jump_edge_mm, {0.0, 1000.0});
   }
   if (auto t = root.table("fixture")) {
     auto& f = part.fixture;

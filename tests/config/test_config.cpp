@@ -135,6 +135,8 @@ TEST(ShippedConfig, PumpBodyHasFourRegionTypes) {
   EXPECT_EQ(part.regions[2].type, fettle::config::RegionType::circle_flash);
   EXPECT_EQ(part.regions[3].type, fettle::config::RegionType::straight_flash);
   EXPECT_DOUBLE_EQ(part.regions[1].depth_per_pass_mm, 2.0);
+  EXPECT_DOUBLE_EQ(part.verification.jump_edge_mm, 4.0);
+  EXPECT_DOUBLE_EQ(part.vision.jump_edge_mm, 0.0);  // the first scan keeps every pixel (see the recipe)
 }
 
 TEST_F(ConfigFileTest, MinimalCellIsValid) {

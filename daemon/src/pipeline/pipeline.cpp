@@ -70,8 +70,9 @@ Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) 
   return vision::transformed(fused->cloud, views.front().T_base_camera);
 }
 
-/// Locates the part and its regions in the views (fuse + vision::inspect).
-Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views,
+/// Locates the part and its regions in the views (fuse + vision::inspect), each view without
+/// its flying pixels first when jump_edge_mm > 0.
+Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views, double jump_edge_mm,
                                   std::vector<StepTiming>& timings, const Progress& progress, std::size_t total) {
   auto t0 = Clock::now();
   if (views.size() == 1 && views.front().cloud.height > 1) {
@@ -83,14 +84,14 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
     report(progress, 1, total, "vision");
     OrganizedCloud filtered;
     auto ins = vision::inspect(loaded.recipe, loaded.templ,
-                               without_jump_edges(views.front().cloud, loaded.recipe.vision.jump_edge_mm, filtered),
+                               without_jump_edges(views.front().cloud, jump_edge_mm, filtered),
                                views.front().T_base_camera);
     timings.push_back({"vision", ms_since(t0)});
     if (!ins) return step_error("vision", ins.error());
     return ins;
   }
   report(progress, 0, total, "fuse");
-  auto scan = fuse(views, loaded.recipe.vision.jump_edge_mm);
+  auto scan = fuse(views, jump_edge_mm);
   if (!scan) return scan.error();
   timings.push_back({"fuse", ms_since(t0)});
   t0 = Clock::now();
@@ -250,7 +251,7 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
   }
   const std::size_t total = 3 + recipe.regions.size();
   ProcessOutput out;
-  auto ins = locate(loaded, views, out.timings, progress, total);
+  auto ins = locate(loaded, views, loaded.recipe.vision.jump_edge_mm, out.timings, progress, total);
   if (!ins) return ins.error();
   out.inspection = std::move(ins.value());
   out.T_base_part = out.inspection.whole.T_scene_template;
@@ -419,7 +420,8 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   const auto& recipe = loaded.recipe;
   VerificationResult out;
   const std::size_t total = 3;
-  auto ins = locate(loaded, rescan, out.timings, progress, total);
+  // the re-scan without flying pixels: beside a wall they stand in the air and read as material
+  auto ins = locate(loaded, rescan, recipe.verification.jump_edge_mm, out.timings, progress, total);
   if (!ins) return ins.error();
   const auto t0 = Clock::now();
   report(progress, 2, total, "verify");

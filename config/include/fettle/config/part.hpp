@@ -79,6 +79,9 @@ struct VerificationSettings {
   double gouge_depth_mm = 0.3;             ///< a point this far below the template is gouged ...
   double nok_max_share_gouged_pct = 0.1;   ///< ... and more gouged ROI points than this share: NOK
   double max_regrind_height_mm = 5.0;      ///< more material than this left above the template: NOK
+  /// Flying pixels of the re-scan: drop a pixel whose range jumps more than this to a neighbour
+  /// (as vision.jump_edge_mm, for the verification only); 0 = off.
+  double jump_edge_mm = 0.0;
 };
 
 struct PartRecipe {
