@@ -101,7 +101,7 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
 }
 
 // Enabled 2026-12-03 (disabled since 2026-12-02: gouges 0.13-0.20 mm, and the flange's ROI held
-// no point of the re-scan). Seeds 1-2 of `make accuracy` at b2cda6e: gouges 0.028 and 0.023 mm,
+// no point of the re-scan). Seeds 1-2 of `make accuracy` at 5c667e5: gouges 0.028 and 0.023 mm,
 // every region type <= 0.06 % > 0.3 mm and <= 0.004 % > 0.5 mm. On 50 seeds 3 boss gouges are
 // still 0.10-0.14 mm (README, "Closed-loop accuracy").
 TEST(Trial, TwoSeedsMeetTheAcceptanceThresholds) {
