@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <stdexcept>
 
 #include <unistd.h>
 
@@ -241,7 +242,10 @@ TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
   full.photo_positions_mm = {0.0, 120.0};
   const auto views = views_of(sim::Scanner(full).capture_all(casting));
   auto boss_of = [](const VerificationResult& r) {
-    return *std::find_if(r.regions.begin(), r.regions.end(), [](const RegionVerification& v) { return v.name == "boss-circle"; });
+    const auto it = std::find_if(r.regions.begin(), r.regions.end(),
+                                 [](const RegionVerification& v) { return v.name == "boss-circle"; });
+    if (it == r.regions.end()) throw std::runtime_error("no boss-circle in the verification");
+    return *it;
   };
   ASSERT_DOUBLE_EQ(loaded_->recipe.verification.jump_edge_mm, 4.0);
   const auto with = verify(*loaded_, cell_, views);
@@ -251,7 +255,8 @@ TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
   unfiltered.recipe.verification.jump_edge_mm = 0.0;
   const auto without = verify(unfiltered, cell_, views);
   ASSERT_TRUE(without) << without.error().message;
-  EXPECT_NE(boss_of(*without).verdict, Verdict::ok) << "the flying pixels no longer read as material: is this test still needed?";
+  EXPECT_NE(boss_of(*without).verdict, Verdict::ok)
+      << "the flying pixels no longer read as material: is this test still needed?";
   EXPECT_GT(boss_of(*without).share_over_0_5_pct, boss_of(*with).share_over_0_5_pct);
 }
 

@@ -360,8 +360,9 @@ std::vector<std::string> VerificationResult::regrind_regions() const {
 
 namespace {
 
-RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs, std::size_t min_points,
-                                std::vector<Eigen::Vector3f> points_part, std::vector<float> residual_mm) {
+RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs,
+                                std::size_t min_points, std::vector<Eigen::Vector3f> points_part,
+                                std::vector<float> residual_mm) {
   RegionVerification v;
   v.name = region.name;
   v.type = region.type;
@@ -392,9 +393,10 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
     // Nothing to judge is not a pass: a region the verification scan does not see (a wall
     // seen edge-on from above, a ROI that misses the part) must not be reported as ground.
     v.verdict = Verdict::nok;
-    v.reason = "cannot be verified: " + std::to_string(v.roi_points) + " points of the verification scan in its ROI (at least " +
-               std::to_string(min_points) + ", vision.min_region_points); check the region's roi_center_mm and roi_size_mm "
-               "against what the camera sees from the slide's photo positions";
+    v.reason = "cannot be verified: " + std::to_string(v.roi_points) +
+               " points of the verification scan in its ROI (at least " + std::to_string(min_points) +
+               ", vision.min_region_points); check the region's roi_center_mm and roi_size_mm against what the "
+               "camera sees from the slide's photo positions";
   } else if (pct(gouged) > vs.nok_max_share_gouged_pct) {
     v.verdict = Verdict::nok;
     v.reason = num(pct(gouged)) + " % of the ROI points are more than gouge_depth_mm = " + num(vs.gouge_depth_mm) +
@@ -445,7 +447,9 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     std::vector<float> residual;
     residual.reserve(pts.size());
     for (const auto& q : pts) residual.push_back(static_cast<float>(loaded.template_sdf(q.cast<double>())));
-    out.regions.push_back(judge_region(region, recipe.verification, static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts), std::move(residual)));
+    out.regions.push_back(judge_region(region, recipe.verification,
+                                       static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
+                                       std::move(residual)));
   }
   for (const auto& r : out.regions) {
     if (r.verdict == Verdict::nok) out.verdict = Verdict::nok;
