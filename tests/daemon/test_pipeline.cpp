@@ -7,7 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
-#include <stdexcept>
+#include <string>
 
 #include <unistd.h>
 
@@ -37,6 +37,13 @@ std::vector<View> views_of(const std::vector<sim::Capture>& captures) {
   std::vector<View> v;
   for (const auto& c : captures) v.push_back({c.cloud, c.truth.T_base_camera, c.truth.slide_position_mm});
   return v;
+}
+
+/// The verification of the region `name`, or nullptr.
+const RegionVerification* region_named(const VerificationResult& r, const std::string& name) {
+  const auto it =
+      std::find_if(r.regions.begin(), r.regions.end(), [&](const RegionVerification& v) { return v.name == name; });
+  return it == r.regions.end() ? nullptr : &*it;
 }
 
 class Pipeline : public ::testing::Test {
@@ -211,9 +218,8 @@ TEST_F(Pipeline, VerifySaysRegrindBeforeGrindingAndOkAfterAnExactGrind) {
   const auto before = verify(*loaded_, cell_, views_of(scanner.capture_all(casting)));
   ASSERT_TRUE(before) << before.error().message;
   EXPECT_NE(before->verdict, Verdict::ok);
-  const auto riser = std::find_if(before->regions.begin(), before->regions.end(),
-                                  [](const RegionVerification& v) { return v.name == "riser"; });
-  ASSERT_NE(riser, before->regions.end());
+  const auto* riser = region_named(*before, "riser");
+  ASSERT_NE(riser, nullptr);
   // an unground riser stands up to 15 mm: REGRIND, or NOK when higher than max_regrind_height_mm
   EXPECT_NE(riser->verdict, Verdict::ok) << riser->reason;
   EXPECT_GT(riser->share_over_0_5_pct, 1.0);
@@ -241,23 +247,21 @@ TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
   sim::ScannerConfig full;
   full.photo_positions_mm = {0.0, 120.0};
   const auto views = views_of(sim::Scanner(full).capture_all(casting));
-  auto boss_of = [](const VerificationResult& r) {
-    const auto it = std::find_if(r.regions.begin(), r.regions.end(),
-                                 [](const RegionVerification& v) { return v.name == "boss-circle"; });
-    if (it == r.regions.end()) throw std::runtime_error("no boss-circle in the verification");
-    return *it;
-  };
   ASSERT_DOUBLE_EQ(loaded_->recipe.verification.jump_edge_mm, 4.0);
   const auto with = verify(*loaded_, cell_, views);
   ASSERT_TRUE(with) << with.error().message;
-  EXPECT_EQ(boss_of(*with).verdict, Verdict::ok) << boss_of(*with).reason;
+  const auto* boss_with = region_named(*with, "boss-circle");
+  ASSERT_NE(boss_with, nullptr);
+  EXPECT_EQ(boss_with->verdict, Verdict::ok) << boss_with->reason;
   LoadedRecipe unfiltered = *loaded_;
   unfiltered.recipe.verification.jump_edge_mm = 0.0;
   const auto without = verify(unfiltered, cell_, views);
   ASSERT_TRUE(without) << without.error().message;
-  EXPECT_NE(boss_of(*without).verdict, Verdict::ok)
+  const auto* boss_without = region_named(*without, "boss-circle");
+  ASSERT_NE(boss_without, nullptr);
+  EXPECT_NE(boss_without->verdict, Verdict::ok)
       << "the flying pixels no longer read as material: is this test still needed?";
-  EXPECT_GT(boss_of(*without).share_over_0_5_pct, boss_of(*with).share_over_0_5_pct);
+  EXPECT_GT(boss_without->share_over_0_5_pct, boss_with->share_over_0_5_pct);
 }
 
 // A region whose ROI the verification scan does not see is not judged OK on no points: the
