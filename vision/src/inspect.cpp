@@ -483,99 +483,138 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
 
 Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const OrganizedCloud& scan,
                            const Transform& T_fixture_camera) {
+  return inspect(recipe, templ, std::vector<OrganizedView>{{&scan, T_fixture_camera}});
+}
+
+Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ,
+                           const std::vector<OrganizedView>& views) {
   StageTimer timer;
   const auto& vs = recipe.vision;
-  const std::size_t w = scan.width;
-  const std::size_t h = scan.height;
-  if (w * h != scan.size() || scan.size() == 0)
-    return Error{"vision.empty_scan", "the organized scan is empty or its size (" + std::to_string(scan.size()) +
-                                          ") is not width x height (" + std::to_string(w) + " x " + std::to_string(h) + ")"};
-  const Eigen::Matrix3f R = T_fixture_camera.rotation().cast<float>();
-  const Eigen::Vector3f t = T_fixture_camera.translation().cast<float>();
+  if (views.empty()) return Error{"vision.no_views", "no view to inspect"};
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const OrganizedCloud* scan = views[i].cloud;
+    if (scan == nullptr || scan->width * scan->height != scan->size() || scan->size() == 0)
+      return Error{"vision.empty_scan",
+                   "view " + std::to_string(i) + ": the organized scan is empty or its size (" +
+                       std::to_string(scan ? scan->size() : 0) + ") is not width x height (" +
+                       std::to_string(scan ? scan->width : 0) + " x " + std::to_string(scan ? scan->height : 0) + ")"};
+  }
   const Box crop = crop_of(vs);
   const Box near = part_neighbourhood(recipe, templ);
   const int threads = detail::thread_count(0);
-  // 1. Image space, one pass over the pixels: validity, the pass-through crop, and the
-  //    statistical outlier measure (mean distance to the valid pixels of a small window).
+  // 1. Image space, one pass over each view's pixels: validity, the pass-through crop, and the
+  //    statistical outlier measure (mean distance to the valid pixels of a small window), whose
+  //    mean and spread are each view's own (the views see the part at different distances).
   const int k = std::max(1, vs.outlier_neighbours);
   const int r = std::max(1, static_cast<int>(std::ceil((std::sqrt(k + 1.0) - 1.0) / 2.0)));
-  std::vector<float> mean_dist(scan.size(), -1.0f);
   struct Stats {
     double sum = 0, sum2 = 0;
     std::size_t n = 0, valid = 0;
     Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
     Eigen::Vector3f hi = Eigen::Vector3f::Constant(-std::numeric_limits<float>::max());
   };
-  std::vector<Stats> stats(static_cast<std::size_t>(threads));
-  detail::parallel_for(h, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
-    Stats& st = stats[th];
-    for (std::size_t v = b; v < e; ++v) {
-      for (std::size_t u = 0; u < w; ++u) {
-        const Eigen::Vector3f& p = scan.points[v * w + u];
-        if (!p.allFinite()) continue;
-        ++st.valid;
-        st.lo = st.lo.cwiseMin(p);
-        st.hi = st.hi.cwiseMax(p);
-        if (!near.contains(R * p + t)) continue;
-        float s = 0.0f;
-        int n = 0;
-        for (std::size_t vv = v >= static_cast<std::size_t>(r) ? v - r : 0; vv <= std::min(h - 1, v + r); ++vv)
-          for (std::size_t uu = u >= static_cast<std::size_t>(r) ? u - r : 0; uu <= std::min(w - 1, u + r); ++uu) {
-            const Eigen::Vector3f& q = scan.points[vv * w + uu];
-            if ((vv == v && uu == u) || !q.allFinite()) continue;
-            s += (q - p).norm();
-            ++n;
+  std::vector<std::vector<float>> mean_dist(views.size());
+  std::vector<float> limit(views.size(), 0.0f);
+  std::size_t valid = 0, measured = 0;
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::max());
+  Eigen::Vector3f hi = -lo;
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const OrganizedCloud& scan = *views[i].cloud;
+    const std::size_t w = scan.width;
+    const std::size_t h = scan.height;
+    const Eigen::Matrix3f R = views[i].T_fixture_camera.rotation().cast<float>();
+    const Eigen::Vector3f t = views[i].T_fixture_camera.translation().cast<float>();
+    auto& md = mean_dist[i];
+    md.assign(scan.size(), -1.0f);
+    std::vector<Stats> stats(static_cast<std::size_t>(threads));
+    detail::parallel_for(h, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+      Stats& st = stats[th];
+      for (std::size_t v = b; v < e; ++v) {
+        for (std::size_t u = 0; u < w; ++u) {
+          const Eigen::Vector3f& p = scan.points[v * w + u];
+          if (!p.allFinite()) continue;
+          ++st.valid;
+          st.lo = st.lo.cwiseMin(p);
+          st.hi = st.hi.cwiseMax(p);
+          if (!near.contains(R * p + t)) continue;
+          float s = 0.0f;
+          int n = 0;
+          for (std::size_t vv = v >= static_cast<std::size_t>(r) ? v - r : 0; vv <= std::min(h - 1, v + r); ++vv)
+            for (std::size_t uu = u >= static_cast<std::size_t>(r) ? u - r : 0; uu <= std::min(w - 1, u + r); ++uu) {
+              const Eigen::Vector3f& q = scan.points[vv * w + uu];
+              if ((vv == v && uu == u) || !q.allFinite()) continue;
+              s += (q - p).norm();
+              ++n;
+            }
+          const float m = n > 0 ? s / static_cast<float>(n) : std::numeric_limits<float>::infinity();
+          md[v * w + u] = m;
+          if (n > 0) {
+            st.sum += m;
+            st.sum2 += static_cast<double>(m) * m;
+            ++st.n;
           }
-        const float m = n > 0 ? s / static_cast<float>(n) : std::numeric_limits<float>::infinity();
-        mean_dist[v * w + u] = m;
-        if (n > 0) {
-          st.sum += m;
-          st.sum2 += static_cast<double>(m) * m;
-          ++st.n;
         }
       }
+    }, 16);
+    Stats all;
+    for (const auto& st : stats) {
+      all.sum += st.sum;
+      all.sum2 += st.sum2;
+      all.n += st.n;
+      all.valid += st.valid;
+      all.lo = all.lo.cwiseMin(st.lo);
+      all.hi = all.hi.cwiseMax(st.hi);
     }
-  }, 16);
-  Stats all;
-  for (const auto& st : stats) {
-    all.sum += st.sum;
-    all.sum2 += st.sum2;
-    all.n += st.n;
-    all.valid += st.valid;
-    all.lo = all.lo.cwiseMin(st.lo);
-    all.hi = all.hi.cwiseMax(st.hi);
+    valid += all.valid;
+    measured += all.n;
+    if (all.valid > 0) lo = lo.cwiseMin(all.lo), hi = hi.cwiseMax(all.hi);
+    const double mean = all.n > 0 ? all.sum / static_cast<double>(all.n) : 0.0;
+    const double sd = all.n > 1 ? std::sqrt(std::max(0.0, all.sum2 / static_cast<double>(all.n) - mean * mean)) : 0.0;
+    limit[i] = static_cast<float>(mean + vs.outlier_std_ratio * sd);
   }
-  if (all.valid == 0) return Error{"vision.empty_scan", "the scan has no valid points (every pixel is NaN)"};
-  if (auto e = check_extent(Bounds{all.lo, all.hi})) return *e;
-  const double mean = all.n > 0 ? all.sum / static_cast<double>(all.n) : 0.0;
-  const double sd = all.n > 1 ? std::sqrt(std::max(0.0, all.sum2 / static_cast<double>(all.n) - mean * mean)) : 0.0;
-  const auto limit = static_cast<float>(mean + vs.outlier_std_ratio * sd);
+  if (valid == 0) return Error{"vision.empty_scan", "the scan has no valid points (every pixel is NaN)"};
+  if (auto e = check_extent(Bounds{lo, hi})) return *e;
   timer.mark("outlier removal");
-  // 2. The fixture plane from a sample of the pixels in the crop box (every 8th row and column).
+  // 2. The fixture plane from a sample of the pixels in the crop box (every 8th row and column
+  //    of every view).
   Cloud sample;
-  for (std::size_t v = 0; v < h; v += 8)
-    for (std::size_t u = 0; u < w; u += 8) {
-      const Eigen::Vector3f& p = scan.points[v * w + u];
-      if (!p.allFinite()) continue;
-      const Eigen::Vector3f q = R * p + t;
-      if (crop.contains(q)) sample.points.push_back(q);
-    }
+  for (const auto& view : views) {
+    const OrganizedCloud& scan = *view.cloud;
+    const Eigen::Matrix3f R = view.T_fixture_camera.rotation().cast<float>();
+    const Eigen::Vector3f t = view.T_fixture_camera.translation().cast<float>();
+    for (std::size_t v = 0; v < scan.height; v += 8)
+      for (std::size_t u = 0; u < scan.width; u += 8) {
+        const Eigen::Vector3f& p = scan.points[v * scan.width + u];
+        if (!p.allFinite()) continue;
+        const Eigen::Vector3f q = R * p + t;
+        if (crop.contains(q)) sample.points.push_back(q);
+      }
+  }
   if (sample.size() < static_cast<std::size_t>(vs.min_region_points) / 64 + 3)
     return Error{"vision.no_part", "only about " + std::to_string(sample.size() * 64) +
                                        " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?"};
   const auto plane = fixture_plane(recipe, templ, sample);
   timer.mark("plane removal");
-  // 3. The kept pixels into the voxel grid (a hash per thread, merged).
+  // 3. The kept pixels of every view into one voxel grid (a hash per thread, merged): where
+  //    views overlap, a voxel holds the centroid of all their points (one surface, no doubled
+  //    layer).
   const auto plane_distance = static_cast<float>(vs.plane_distance_mm);
   std::vector<detail::VoxelAccumulator> acc;
-  for (int th = 0; th < threads; ++th) acc.emplace_back(scene_voxel(recipe), all.n / static_cast<std::size_t>(threads) / 2);
-  detail::parallel_for(h, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
-    for (std::size_t i = b * w; i < e * w; ++i) {
-      if (!(mean_dist[i] >= 0.0f && mean_dist[i] <= limit)) continue;
-      const Eigen::Vector3f q = R * scan.points[i] + t;
-      if (!on_plane(plane, q, plane_distance)) acc[th].add(q);
-    }
-  }, 16);
+  for (int th = 0; th < threads; ++th) acc.emplace_back(scene_voxel(recipe), measured / static_cast<std::size_t>(threads) / 2);
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    const OrganizedCloud& scan = *views[i].cloud;
+    const Eigen::Matrix3f R = views[i].T_fixture_camera.rotation().cast<float>();
+    const Eigen::Vector3f t = views[i].T_fixture_camera.translation().cast<float>();
+    const auto& md = mean_dist[i];
+    const float lim = limit[i];
+    detail::parallel_for(scan.height, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+      for (std::size_t j = b * scan.width; j < e * scan.width; ++j) {
+        if (!(md[j] >= 0.0f && md[j] <= lim)) continue;
+        const Eigen::Vector3f q = R * scan.points[j] + t;
+        if (!on_plane(plane, q, plane_distance)) acc[th].add(q);
+      }
+    }, 16);
+  }
   for (std::size_t th = 1; th < acc.size(); ++th) acc[0].merge(acc[th]);
   Cloud scene;
   acc[0].write(scene.points);

@@ -14,6 +14,7 @@
 #include "fettle/core/result.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/excess.hpp"
+#include "fettle/vision/multiview.hpp"
 #include "fettle/vision/registration.hpp"
 
 namespace fettle::vision {
@@ -78,5 +79,12 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
 /// the scan). T_fixture_camera maps the camera frame into the fixture frame.
 Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const OrganizedCloud& scan,
                            const Transform& T_fixture_camera);
+
+/// The same on several organized views of one part (the slide's photo positions, their poses
+/// refined by register_views()): each view's
+/// outliers are measured in its own image with its own mean and spread, and the kept pixels of
+/// every view go into one voxel grid, so overlapping views become one surface.
+Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ,
+                           const std::vector<OrganizedView>& views);
 
 }  // namespace fettle::vision
