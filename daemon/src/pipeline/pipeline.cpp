@@ -47,6 +47,12 @@ const OrganizedCloud& without_jump_edges(const OrganizedCloud& view, double jump
   return storage;
 }
 
+Error empty_view(std::size_t i, const View& view) {
+  return Error{"pipeline.empty_view", "step fuse: view " + std::to_string(i) + " (slide at " +
+                                          std::to_string(view.slide_position_mm) +
+                                          " mm) has no valid point: check the camera and its exposure"};
+}
+
 /// The views in the base (= fixture) frame, fused into one cloud when there are several.
 Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) {
   if (views.empty()) return Error{"pipeline.no_views", "step fuse: no views were captured"};
@@ -56,10 +62,7 @@ Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) 
     vision::View v;
     OrganizedCloud filtered;
     v.cloud = vision::to_cloud(without_jump_edges(views[i].cloud, jump_edge_mm, filtered));
-    if (v.cloud.empty())
-      return Error{"pipeline.empty_view", "step fuse: view " + std::to_string(i) + " (slide at " +
-                                              std::to_string(views[i].slide_position_mm) +
-                                              " mm) has no valid point: check the camera and its exposure"};
+    if (v.cloud.empty()) return empty_view(i, views[i]);
     v.T_first_view = views.front().T_base_camera.inverse() * views[i].T_base_camera;
     camera_views.push_back(std::move(v));
   }
@@ -70,22 +73,34 @@ Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) 
   return vision::transformed(fused->cloud, views.front().T_base_camera);
 }
 
-/// Locates the part and its regions in the views (fuse + vision::inspect), each view without
-/// its flying pixels first when jump_edge_mm > 0.
+/// Locates the part and its regions in the views, each view without its flying pixels first
+/// when jump_edge_mm > 0. Organized views (the camera's) go to the vision stage as they are:
+/// image-space outliers per view, every view's pixels into one voxel grid at its slide pose
+/// refined against the previous view (vision::register_views). Unorganized ones are fused
+/// first (vision::fuse_views).
 Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views, double jump_edge_mm,
                                   std::vector<StepTiming>& timings, const Progress& progress, std::size_t total) {
   auto t0 = Clock::now();
-  if (views.size() == 1 && views.front().cloud.height > 1) {
-    // one organized view: the vision stage works on the camera's cloud itself (image-space outliers,
-    // voxel grid filled from the pixels)
-    if (views.front().cloud.count_valid() == 0)
-      return Error{"pipeline.empty_view", "step fuse: view 0 (slide at " + std::to_string(views.front().slide_position_mm) +
-                                              " mm) has no valid point: check the camera and its exposure"};
+  const bool organized = !views.empty() && std::all_of(views.begin(), views.end(), [](const View& v) {
+    return v.cloud.height > 1;
+  });
+  if (organized) {
+    report(progress, 0, total, "fuse");
+    std::vector<OrganizedCloud> filtered(views.size());
+    std::vector<vision::OrganizedView> organized_views;
+    for (std::size_t i = 0; i < views.size(); ++i) {
+      if (views[i].cloud.count_valid() == 0) return empty_view(i, views[i]);
+      organized_views.push_back({&without_jump_edges(views[i].cloud, jump_edge_mm, filtered[i]), views[i].T_base_camera});
+    }
+    if (views.size() > 1) {  // the slide's calibrated poses, refined pairwise on the overlaps
+      auto refined = vision::register_views(organized_views, vision::FuseSettings{});
+      if (!refined) return step_error("fuse", refined.error());
+      organized_views = std::move(*refined);
+    }
+    timings.push_back({"fuse", ms_since(t0)});
+    t0 = Clock::now();
     report(progress, 1, total, "vision");
-    OrganizedCloud filtered;
-    auto ins = vision::inspect(loaded.recipe, loaded.templ,
-                               without_jump_edges(views.front().cloud, jump_edge_mm, filtered),
-                               views.front().T_base_camera);
+    auto ins = vision::inspect(loaded.recipe, loaded.templ, organized_views);
     timings.push_back({"vision", ms_since(t0)});
     if (!ins) return step_error("vision", ins.error());
     return ins;
