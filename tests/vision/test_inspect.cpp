@@ -185,6 +185,35 @@ TEST(Inspect, MetresAreRefused) {
   EXPECT_NE(r.error().message.find("metres"), std::string::npos);
 }
 
+TEST(Inspect, SeveralOrganizedViewsRefuseAMissingOrMisSizedViewNamingIt) {
+  const auto rec = recipe();
+  const auto templ = PartTemplate::build(rec, casting(0.5, false, nullptr));
+  fettle::OrganizedCloud good;
+  good.width = 2;
+  good.height = 2;
+  good.points.assign(4, Eigen::Vector3f(0.0f, 0.0f, 600.0f));
+  fettle::OrganizedCloud short_of_a_row = good;
+  short_of_a_row.points.resize(3);
+  const auto none = inspect(rec, templ, std::vector<OrganizedView>{});
+  ASSERT_FALSE(none.ok());
+  EXPECT_EQ(none.error().code, "vision.no_views");
+  const Transform I = Transform::Identity();
+  const auto missing = inspect(rec, templ, std::vector<OrganizedView>{{&good, I}, {nullptr, I}});
+  ASSERT_FALSE(missing.ok());
+  EXPECT_EQ(missing.error().code, "vision.empty_scan");
+  EXPECT_NE(missing.error().message.find("view 1"), std::string::npos) << missing.error().message;
+  const auto mis_sized = inspect(rec, templ, std::vector<OrganizedView>{{&good, I}, {&short_of_a_row, I}});
+  ASSERT_FALSE(mis_sized.ok());
+  EXPECT_NE(mis_sized.error().message.find("view 1"), std::string::npos) << mis_sized.error().message;
+  EXPECT_NE(mis_sized.error().message.find("2 x 2"), std::string::npos) << mis_sized.error().message;
+  fettle::OrganizedCloud all_nan = good;
+  all_nan.points.assign(4, fettle::OrganizedCloud::invalid());
+  const auto nan = inspect(rec, templ, std::vector<OrganizedView>{{&all_nan, I}, {&all_nan, I}});
+  ASSERT_FALSE(nan.ok());
+  EXPECT_EQ(nan.error().code, "vision.empty_scan");
+  EXPECT_NE(nan.error().message.find("every pixel is NaN"), std::string::npos) << nan.error().message;
+}
+
 TEST(TemplateCache, SecondLoadComesFromDiskAndMatches) {
   auto rec = recipe();
   const auto dir = std::filesystem::temp_directory_path() / ("fettle-tcache-" + std::to_string(::getpid()));

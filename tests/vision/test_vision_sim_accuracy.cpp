@@ -49,8 +49,8 @@
 // degrees (met) but 0.17 mm (not met: the whole part's yaw times the lever arm to the riser,
 // seed 3; see docs/vision.md). The riser's excess volume is within
 // 2.6 % of the truth (median +0.9 %; 2026-12-03, the scan resampled onto the template's
-// patches; it was within 12.7 %, 5 % low on the median). `make accuracy-vision` runs it anyway (--gtest_also_run_disabled_tests);
-// remove the DISABLED_ prefix once it passes.
+// patches; it was within 12.7 %, 5 % low on the median). `make accuracy-vision` runs it anyway
+// (--gtest_also_run_disabled_tests); remove the DISABLED_ prefix once it passes.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -428,8 +428,8 @@ TEST(MultiView, TwoOrganizedViewsPlaceThePartWithin50Microns) {
     const auto second = scanner.capture(casting, 120.0, 1);
     const auto one = inspect(recipe, templ, first.cloud, first.truth.T_base_camera);
     ASSERT_TRUE(one.ok()) << "seed " << seed << ": " << one.error().message;
-    const auto views = register_views({{&first.cloud, first.truth.T_base_camera}, {&second.cloud, second.truth.T_base_camera}},
-                                      FuseSettings{});
+    const auto views = register_views(
+        {{&first.cloud, first.truth.T_base_camera}, {&second.cloud, second.truth.T_base_camera}}, FuseSettings{});
     ASSERT_TRUE(views.ok()) << views.error().message;
     const auto two = inspect(recipe, templ, *views);
     ASSERT_TRUE(two.ok()) << "seed " << seed << ": " << two.error().message;
@@ -442,7 +442,8 @@ TEST(MultiView, TwoOrganizedViewsPlaceThePartWithin50Microns) {
       const auto& roi = recipe.regions[i].roi_center_mm;
       const auto& rr = two->regions[i];
       ASSERT_TRUE(rr.ok()) << "seed " << seed << " " << rr.name << ": " << rr.error->message;
-      const auto e = test::pose_error_at(rr.registration.T_scene_template, first.truth.T_base_part, Vec3(roi[0], roi[1], roi[2]));
+      const auto e =
+          test::pose_error_at(rr.registration.T_scene_template, first.truth.T_base_part, Vec3(roi[0], roi[1], roi[2]));
       std::printf("seed %d %-18s two views %.4f mm %.4f deg\n", seed, rr.name.c_str(), e.translation,
                   fettle::rad_to_deg(e.rotation_rad));
       EXPECT_LE(e.translation, 0.05) << "seed " << seed << " " << rr.name;

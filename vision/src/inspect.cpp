@@ -494,10 +494,10 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
   for (std::size_t i = 0; i < views.size(); ++i) {
     const OrganizedCloud* scan = views[i].cloud;
     if (scan == nullptr || scan->width * scan->height != scan->size() || scan->size() == 0)
-      return Error{"vision.empty_scan",
-                   "view " + std::to_string(i) + ": the organized scan is empty or its size (" +
-                       std::to_string(scan ? scan->size() : 0) + ") is not width x height (" +
-                       std::to_string(scan ? scan->width : 0) + " x " + std::to_string(scan ? scan->height : 0) + ")"};
+      return Error{"vision.empty_scan", "view " + std::to_string(i) + ": the organized scan is empty or its size (" +
+                                            std::to_string(scan ? scan->size() : 0) + ") is not width x height (" +
+                                            std::to_string(scan ? scan->width : 0) + " x " +
+                                            std::to_string(scan ? scan->height : 0) + ")"};
   }
   const Box crop = crop_of(vs);
   const Box near = part_neighbourhood(recipe, templ);
@@ -600,7 +600,8 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
   //    layer).
   const auto plane_distance = static_cast<float>(vs.plane_distance_mm);
   std::vector<detail::VoxelAccumulator> acc;
-  for (int th = 0; th < threads; ++th) acc.emplace_back(scene_voxel(recipe), measured / static_cast<std::size_t>(threads) / 2);
+  const std::size_t expected_voxels = measured / static_cast<std::size_t>(threads) / 2;
+  for (int th = 0; th < threads; ++th) acc.emplace_back(scene_voxel(recipe), expected_voxels);
   for (std::size_t i = 0; i < views.size(); ++i) {
     const OrganizedCloud& scan = *views[i].cloud;
     const Eigen::Matrix3f R = views[i].T_fixture_camera.rotation().cast<float>();

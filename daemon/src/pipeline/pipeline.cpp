@@ -81,16 +81,16 @@ Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) 
 Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views, double jump_edge_mm,
                                   std::vector<StepTiming>& timings, const Progress& progress, std::size_t total) {
   auto t0 = Clock::now();
-  const bool organized = !views.empty() && std::all_of(views.begin(), views.end(), [](const View& v) {
-    return v.cloud.height > 1;
-  });
+  const bool organized =
+      !views.empty() && std::all_of(views.begin(), views.end(), [](const View& v) { return v.cloud.height > 1; });
   if (organized) {
     report(progress, 0, total, "fuse");
     std::vector<OrganizedCloud> filtered(views.size());
     std::vector<vision::OrganizedView> organized_views;
     for (std::size_t i = 0; i < views.size(); ++i) {
       if (views[i].cloud.count_valid() == 0) return empty_view(i, views[i]);
-      organized_views.push_back({&without_jump_edges(views[i].cloud, jump_edge_mm, filtered[i]), views[i].T_base_camera});
+      organized_views.push_back(
+          {&without_jump_edges(views[i].cloud, jump_edge_mm, filtered[i]), views[i].T_base_camera});
     }
     if (views.size() > 1) {  // the slide's calibrated poses, refined pairwise on the overlaps
       auto refined = vision::register_views(organized_views, vision::FuseSettings{});

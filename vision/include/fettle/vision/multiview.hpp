@@ -49,7 +49,8 @@ Result<ViewPoses> register_views(const std::vector<View>& views, const FuseSetti
 
 /// The same on organized views: the returned views are `views` with every T_fixture_camera
 /// after the first refined (chained from the first view's, which is kept).
-Result<std::vector<OrganizedView>> register_views(const std::vector<OrganizedView>& views, const FuseSettings& settings);
+Result<std::vector<OrganizedView>> register_views(const std::vector<OrganizedView>& views,
+                                                  const FuseSettings& settings);
 
 /// Each view starts at its calibration pose, is refined against the previous view (ICP on
 /// the overlap, both views voxelized to icp_voxel_mm), the pairwise results are chained
