@@ -10,6 +10,11 @@ namespace fettle::vision {
 
 namespace {
 
+struct ViewPoses {
+  std::vector<Transform> T_first_view;  // refined pose of every view (first = identity)
+  std::vector<double> pair_fitness;     // fitness of view i+1 against view i
+};
+
 Cloud downsampled(const Cloud& c, double voxel) {
   Cloud d = voxel_downsample(c, voxel);
   d.normals.clear();
@@ -61,10 +66,6 @@ Result<ViewPoses> chain_views(const std::vector<View>& views, const FuseSettings
 }
 
 }  // namespace
-
-Result<ViewPoses> register_views(const std::vector<View>& views, const FuseSettings& settings) {
-  return chain_views(views, settings, nullptr);
-}
 
 Result<std::vector<OrganizedView>> register_views(const std::vector<OrganizedView>& views,
                                                   const FuseSettings& settings) {

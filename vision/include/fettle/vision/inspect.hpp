@@ -81,9 +81,9 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
                            const Transform& T_fixture_camera);
 
 /// The same on several organized views of one part (the slide's photo positions, their poses
-/// refined by register_views()): each view's
-/// outliers are measured in its own image with its own mean and spread, and the kept pixels of
-/// every view go into one voxel grid, so overlapping views become one surface.
+/// refined by register_views()): each view's outliers are measured in its own image with its
+/// own mean and spread, and the kept pixels of every view go into one voxel grid, so
+/// overlapping views become one surface.
 Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ,
                            const std::vector<OrganizedView>& views);
 

@@ -38,16 +38,8 @@ struct FusedCloud {
   std::vector<double> pair_fitness;     ///< fitness of view i+1 against view i
 };
 
-struct ViewPoses {
-  std::vector<Transform> T_first_view;  ///< refined pose of every view (first = identity)
-  std::vector<double> pair_fitness;     ///< fitness of view i+1 against view i
-};
-
-/// The registration half of fuse_views(): the refined, chained poses without the merged cloud
-/// (for a caller that fuses the views itself, such as the organized multi-view inspect()).
-Result<ViewPoses> register_views(const std::vector<View>& views, const FuseSettings& settings);
-
-/// The same on organized views: the returned views are `views` with every T_fixture_camera
+/// The registration half of fuse_views() on organized views, for the multi-view inspect(),
+/// which fuses the views itself: the returned views are `views` with every T_fixture_camera
 /// after the first refined (chained from the first view's, which is kept).
 Result<std::vector<OrganizedView>> register_views(const std::vector<OrganizedView>& views,
                                                   const FuseSettings& settings);
