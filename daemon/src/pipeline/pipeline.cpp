@@ -93,7 +93,11 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
           {&without_jump_edges(views[i].cloud, jump_edge_mm, filtered[i]), views[i].T_base_camera});
     }
     if (views.size() > 1) {  // the slide's calibrated poses, refined pairwise on the overlaps
-      auto refined = vision::register_views(organized_views, vision::FuseSettings{});
+      vision::FuseSettings fs;
+      // Views already without jumps over jump_edge_mm have none over a larger threshold either
+      // (remove_jump_edges drops both pixels of every such pair): no second pass over them.
+      if (jump_edge_mm > 0.0 && jump_edge_mm <= fs.jump_edge_mm) fs.jump_edge_mm = 0.0;
+      auto refined = vision::register_views(organized_views, fs);
       if (!refined) return step_error("fuse", refined.error());
       organized_views = std::move(*refined);
     }
