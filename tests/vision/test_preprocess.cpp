@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <fstream>
 #include <random>
 
@@ -130,6 +131,97 @@ TEST(JumpEdges, FlyingPixelsBetweenTwoSurfacesAreDroppedAndTheSurfacesKept) {
     for (std::uint32_t u = 0; u < o.width; ++u) slope.points[v * 40 + u].z() = 500.0f + 0.25f * static_cast<float>(u);
   EXPECT_EQ(remove_jump_edges(slope, 2.0).count_valid(), slope.count_valid());
   EXPECT_EQ(remove_jump_edges(o, 0.0).count_valid(), o.count_valid());
+}
+
+namespace {
+
+/// A pinhole camera (f = 1000 px, 80 x 40 pixels, looking along +z) over a block whose top
+/// (500 mm away) ends at x = edge_x mm, with the floor 520 mm away beyond: each pixel's centre
+/// ray hits one or the other (0.5 mm pixels on the top).
+fettle::OrganizedCloud step_view(float edge_x) {
+  fettle::OrganizedCloud o;
+  o.width = 80;
+  o.height = 40;
+  for (std::uint32_t v = 0; v < o.height; ++v)
+    for (std::uint32_t u = 0; u < o.width; ++u) {
+      const Eigen::Vector3f ray((static_cast<float>(u) - 39.5f) / 1000.0f, (static_cast<float>(v) - 19.5f) / 1000.0f, 1.0f);
+      o.points.push_back(ray * (ray.x() * 500.0f < edge_x ? 500.0f : 520.0f));
+    }
+  return o;
+}
+
+/// The last pixel on the block's top in row v.
+std::uint32_t last_top(const fettle::OrganizedCloud& o, std::uint32_t v) {
+  std::uint32_t u = 0;
+  while (u + 1 < o.width && o.points[v * o.width + u + 1].z() < 510.0f) ++u;
+  return u;
+}
+
+std::size_t count_mixed(const fettle::OrganizedCloud& o, double min_jump_mm) {
+  const auto m = mixed_pixels(o, min_jump_mm, 0.3);
+  return static_cast<std::size_t>(std::count(m.begin(), m.end(), std::uint8_t{1}));
+}
+
+}  // namespace
+
+TEST(MixedPixels, PixelsBetweenTwoSurfacesAreMixedTheSurfacesLastPixelsAreNot) {
+  auto o = step_view(0.11f);
+  // Flying pixels: in rows 0, 4, 8, ... the top's last pixel pulled 30 % of the way down to
+  // the floor, in rows 2, 6, 10, ... the floor's first pixel 60 % of the way up to the top.
+  std::vector<std::size_t> flying;
+  for (std::uint32_t v = 0; v < o.height; v += 2) {
+    const std::size_t k = v * o.width + last_top(o, v) + (v % 4 == 0 ? 0 : 1);
+    const float z = o.points[k].z();
+    o.points[k] *= (z < 510.0f ? 506.0f : 508.0f) / z;
+    flying.push_back(k);
+  }
+  const auto mixed = mixed_pixels(o, 2.0, 0.3);
+  ASSERT_EQ(mixed.size(), o.size());
+  for (std::size_t k : flying) EXPECT_EQ(mixed[k], 1) << "flying pixel " << k;
+  for (std::uint32_t v = 1; v < o.height; v += 2) {  // rows without one: both sides' pixels are true
+    EXPECT_EQ(mixed[v * o.width + last_top(o, v)], 0) << "row " << v;
+    EXPECT_EQ(mixed[v * o.width + last_top(o, v) + 1], 0) << "row " << v;
+  }
+  EXPECT_EQ(count_mixed(o, 2.0), flying.size());
+  EXPECT_EQ(count_mixed(o, 0.0), 0U);  // 0 finds none
+  // a steep but smooth surface (3 mm per pixel) is no mixture of two
+  fettle::OrganizedCloud steep = o;
+  for (std::uint32_t v = 0; v < o.height; ++v)
+    for (std::uint32_t u = 0; u < o.width; ++u) steep.points[v * o.width + u].z() = 500.0f + 3.0f * static_cast<float>(u);
+  EXPECT_EQ(count_mixed(steep, 2.0), 0U);
+}
+
+TEST(OccludingEdges, LieOnTheFacesEdgeWithinHalfAPixelWithoutBias) {
+  // The edge at ten places across a pixel (0.5 mm): one edge point per row, at the top's depth,
+  // off by half a pixel at most and by nothing on average.
+  double sum = 0.0;
+  std::size_t n = 0;
+  for (int f = 0; f < 10; ++f) {
+    const float edge_x = 0.03f + 0.05f * static_cast<float>(f);
+    const auto o = step_view(edge_x);
+    const auto edges = occluding_edges(o, mixed_pixels(o, 2.0, 0.3), 2.0);
+    ASSERT_EQ(edges.size(), o.height) << "edge at x = " << edge_x;
+    for (const auto& p : edges.points) {
+      EXPECT_NEAR(p.z(), 500.0f, 0.01f);
+      EXPECT_LE(std::abs(p.x() - edge_x), 0.25f + 1e-3f) << "edge at x = " << edge_x;
+      sum += p.x() - edge_x;
+      ++n;
+    }
+  }
+  EXPECT_LT(std::abs(sum / static_cast<double>(n)), 0.01);
+  // Past a mixed pixel, halfway between the true pixels on either side; a dropout beside the
+  // face: where it ends is unknown, no edge point.
+  auto o = step_view(0.11f);
+  const std::size_t k = 7 * o.width + last_top(o, 7) + 1;
+  o.points[k] *= 510.0f / o.points[k].z();
+  const auto past = occluding_edges(o, mixed_pixels(o, 2.0, 0.3), 2.0);
+  ASSERT_EQ(past.size(), o.height);
+  const auto row7 = std::find_if(past.points.begin(), past.points.end(),
+                                 [](const Eigen::Vector3f& p) { return std::abs(p.y() / p.z() * 1000.0f + 19.5f - 7.0f) < 0.1f; });
+  ASSERT_NE(row7, past.points.end());
+  EXPECT_NEAR(row7->x(), o.points[k].x() / o.points[k].z() * 500.0f, 0.01f);  // on the mixed pixel's ray
+  o.points[k] = fettle::OrganizedCloud::invalid();
+  EXPECT_EQ(occluding_edges(o, mixed_pixels(o, 2.0, 0.3), 2.0).size(), o.height - 1);
 }
 
 TEST(Normals, PcaNormalsOfAPlaneFaceTheViewpoint) {

@@ -345,6 +345,62 @@ TEST(FineSettings, ShallowFacesGiveHeightsOnlySoAFormDeviationDoesNotSlideThePar
   EXPECT_LT((sampled->T_scene_template.translation() - heights->T_scene_template.translation()).norm(), 0.01);
 }
 
+TEST(FineSettings, OccludingEdgesFixABlockWhoseWallsTheCameraDoesNotSee) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto flat = [](float, float) { return 0.0; };
+  const auto templ = PreparedCloud::prepare(slope_block(flat, 0.5f), ps);
+  // Seen from above, the block is its top alone (the walls drop out), 0.15 mm and 0.1 degrees
+  // about z from where the ICP starts: the camera's pixels (0.5 mm) where their rays hit the
+  // top, the last of them 0-0.5 mm inside its rim. Its occluding edges: every 0.5 mm along
+  // the rim, each off by up to half a pixel (0.25 mm) across it.
+  Transform T_true = Transform::Identity();
+  T_true.linear() = Eigen::AngleAxisd(fettle::deg_to_rad(0.1), fettle::Vec3::UnitZ()).toRotationMatrix();
+  T_true.translation() = fettle::Vec3(0.15, -0.1, 0.0);
+  const float s = std::tan(static_cast<float>(8.0 * M_PI / 180.0));
+  const auto top = [&](float x) { return x > 0 ? s * x : 0.0f; };
+  Cloud scene, edges;
+  const Transform T_part_scene = T_true.inverse();
+  for (double xs = -31.0 + 0.13; xs <= 31; xs += 0.5)
+    for (double ys = -31.0 + 0.31; ys <= 31; ys += 0.5) {
+      const fettle::Vec3 p = T_part_scene * fettle::Vec3(xs, ys, 0.0);
+      if (std::abs(p.x()) > 30 || std::abs(p.y()) > 30) continue;
+      scene.points.emplace_back(static_cast<float>(p.x()), static_cast<float>(p.y()), top(static_cast<float>(p.x())));
+    }
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> across(-0.25f, 0.25f);
+  for (float a = -29.75f; a < 30; a += 0.5f) {
+    edges.points.emplace_back(a, -30.0f + across(rng), top(a));
+    edges.points.emplace_back(a, 30.0f + across(rng), top(a));
+    edges.points.emplace_back(-30.0f + across(rng), a, 0.0f);
+    edges.points.emplace_back(30.0f + across(rng), a, top(30.0f));
+  }
+  scene = transformed(scene, T_true);
+  edges = transformed(edges, T_true);
+  FineSettings fs;  // as the whole part's last ICP
+  fs.max_distance = 1.0;
+  fs.min_distance = 1.0;
+  fs.max_iterations = 30;
+  fs.edge_aware = true;
+  fs.trim_outside_mm = 0.3;
+  fs.heights_only_slope_deg = 40.0;
+  const auto corner_error = [&](const Transform& T) {
+    double worst = 0.0;
+    for (const fettle::Vec3& p : {fettle::Vec3(30, 30, 0), fettle::Vec3(-30, 30, 0), fettle::Vec3(30, -30, 0), fettle::Vec3(-30, -30, 0)})
+      worst = std::max(worst, (T * p - T_true * p).norm());
+    return worst;
+  };
+  // The top alone holds the block only where its last pixels stand past the template's rim.
+  const auto without = refine(templ, scene, Transform::Identity(), fs);
+  ASSERT_TRUE(without.ok()) << without.error().message;
+  EXPECT_GT(corner_error(without->T_scene_template), 0.1);
+  fs.occluding_edges = &edges;
+  fs.edge_weight = 0.5;
+  const auto with = refine(templ, scene, Transform::Identity(), fs);
+  ASSERT_TRUE(with.ok()) << with.error().message;
+  EXPECT_LT(corner_error(with->T_scene_template), 0.05);  // 0.036 (0.169 without)
+}
+
 namespace {
 
 /// A 60 x 60 mm plate (z = 0) with a shallow round hump, `height` mm high with a 10 mm

@@ -149,6 +149,90 @@ OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm
   return out;
 }
 
+std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, double min_jump_mm, double tolerance_mm) {
+  const std::size_t w = cloud.width, h = cloud.height;
+  std::vector<std::uint8_t> mixed(cloud.size(), 0);
+  if (min_jump_mm <= 0.0 || w * h != cloud.size() || w < 3 || h < 3) return mixed;
+  std::vector<float> range(cloud.size(), std::numeric_limits<float>::quiet_NaN());
+  for (std::size_t k = 0; k < cloud.size(); ++k)
+    if (cloud.points[k].allFinite()) range[k] = cloud.points[k].norm();
+  const auto jump = static_cast<float>(min_jump_mm);
+  const auto tol = static_cast<float>(tolerance_mm);
+  constexpr int du[8] = {1, -1, 0, 0, 1, 1, -1, -1};
+  constexpr int dv[8] = {0, 0, 1, -1, 1, -1, 1, -1};
+  const int iw = static_cast<int>(w), ih = static_cast<int>(h);
+  detail::parallel_for(h, detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
+    for (int v = static_cast<int>(b); v < static_cast<int>(e); ++v)
+      for (int u = 0; u < iw; ++u) {
+        const auto k = static_cast<std::size_t>(v * iw + u);
+        const float r = range[k];
+        if (std::isnan(r)) continue;
+        float largest = 0.0f;
+        for (int d = 0; d < 4; ++d) {
+          const int uu = u + du[d], vv = v + dv[d];
+          if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
+          const float rn = range[static_cast<std::size_t>(vv * iw + uu)];
+          if (!std::isnan(rn)) largest = std::max(largest, std::abs(rn - r));
+        }
+        if (largest <= jump) continue;
+        const float limit = std::max(tol, 0.1f * largest);
+        bool on_surface = false;
+        for (int d = 0; d < 8 && !on_surface; ++d) {
+          const int u1 = u + du[d], v1 = v + dv[d], u2 = u + 2 * du[d], v2 = v + 2 * dv[d];
+          if (u2 < 0 || u2 >= iw || v2 < 0 || v2 >= ih) continue;
+          const float r1 = range[static_cast<std::size_t>(v1 * iw + u1)];
+          const float r2 = range[static_cast<std::size_t>(v2 * iw + u2)];
+          if (std::isnan(r1) || std::isnan(r2) || std::abs(r1 - r2) > jump) continue;
+          on_surface = std::abs(2.0f * r1 - r2 - r) <= limit;
+        }
+        if (!on_surface) mixed[k] = 1;
+      }
+  }, 16);
+  return mixed;
+}
+
+Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_t>& mixed, double min_jump_mm) {
+  Cloud out;
+  const std::size_t w = cloud.width, h = cloud.height;
+  if (w * h != cloud.size() || w < 3 || h < 3) return out;
+  const bool has_mixed = mixed.size() == cloud.size();
+  auto usable = [&](std::size_t k) { return cloud.points[k].allFinite() && !(has_mixed && mixed[k] != 0); };
+  const auto jump = static_cast<float>(std::max(0.0, min_jump_mm));
+  constexpr int du[4] = {1, -1, 0, 0};
+  constexpr int dv[4] = {0, 0, 1, -1};
+  const int iw = static_cast<int>(w), ih = static_cast<int>(h);
+  const int threads = detail::thread_count(0);
+  std::vector<std::vector<Eigen::Vector3f>> found(static_cast<std::size_t>(threads));
+  detail::parallel_for(h, threads, [&](std::size_t th, std::size_t b, std::size_t e) {
+    auto& f = found[th];
+    for (int v = static_cast<int>(b); v < static_cast<int>(e); ++v)
+      for (int u = 0; u < iw; ++u) {
+        const auto k = static_cast<std::size_t>(v * iw + u);
+        if (!usable(k)) continue;
+        const Eigen::Vector3f& a = cloud.points[k];
+        const float ra = a.norm();
+        for (int d = 0; d < 4; ++d) {
+          int uu = u + du[d], vv = v + dv[d];
+          if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
+          auto n = static_cast<std::size_t>(vv * iw + uu);
+          if (!cloud.points[n].allFinite()) continue;  // a dropout: where the face ends is unknown
+          if (has_mixed && mixed[n] != 0) {            // past one mixed pixel
+            uu += du[d], vv += dv[d];
+            if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
+            n = static_cast<std::size_t>(vv * iw + uu);
+            if (!usable(n)) continue;
+          }
+          const Eigen::Vector3f& p = cloud.points[n];
+          const float rb = p.norm();
+          if (!(rb - ra > jump)) continue;
+          f.push_back((a / ra + p / rb).normalized() * ra);
+        }
+      }
+  }, 16);
+  for (auto& f : found) out.points.insert(out.points.end(), f.begin(), f.end());
+  return out;
+}
+
 OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int window_radius, double std_ratio) {
   if (window_radius <= 0 || cloud.width == 0 || cloud.height == 0) return cloud;
   const int w = static_cast<int>(cloud.width);

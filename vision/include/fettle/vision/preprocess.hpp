@@ -1,6 +1,8 @@
 #pragma once
 // Preprocessing: voxel grid (centroid per voxel), pass-through crop, outlier removal, normals.
 #include <cstddef>
+#include <cstdint>
+#include <vector>
 
 #include "fettle/core/cloud.hpp"
 #include "fettle/core/geometry.hpp"
@@ -33,6 +35,22 @@ OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int wind
 /// at a depth discontinuity mix the two surfaces and sit in the air between them; the filter
 /// also drops the one true pixel on each side of every jump. max_jump_mm <= 0 keeps everything.
 OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm);
+
+/// Mixed ("flying") pixels of an organized cloud in its camera frame. A pixel beside a range
+/// jump of more than `min_jump_mm` is kept when a straight line through two valid pixels on
+/// one side of it (any of the 8 directions, no jump between them) predicts its range within
+/// max(`tolerance_mm`, a tenth of its largest jump); otherwise it is mixed: a range between the
+/// two surfaces, on no surface. Unlike remove_jump_edges, the true pixels at both sides of a
+/// jump stay (the last pixel of a top face fixes its occluding edge). 1 = mixed.
+std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, double min_jump_mm, double tolerance_mm);
+
+/// Occluding edges of an organized cloud in its camera frame: for each valid, unmixed pixel
+/// whose 4-neighbour (or, past one mixed pixel, the next one in that direction) is valid,
+/// unmixed and more than `min_jump_mm` farther, the point at the pixel's range on the ray
+/// halfway between the two. The face's true edge lies anywhere between those two rays, so the
+/// point is on it within half a pixel either way (FineSettings::occluding_edges). `mixed`
+/// from mixed_pixels (empty: none).
+Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_t>& mixed, double min_jump_mm);
 
 /// Normals from the k nearest neighbours (PCA), oriented towards `viewpoint`.
 void estimate_normals(Cloud& cloud, int k, const Eigen::Vector3f& viewpoint = Eigen::Vector3f::Zero());

@@ -150,6 +150,15 @@ struct FineSettings {
   double degenerate_ratio = 0.0;
   double max_view_angle_deg = 75.0;
   double covered_mm = 0.0;
+  /// Occluding-edge points (scene frame, may be null): where a camera's view of a face ends at
+  /// a depth jump, the point halfway between the last ray on the face and the first ray past
+  /// it, at the face's range (occluding_edges()). The true edge lies anywhere between the two
+  /// rays, so that point is on it give or take half a pixel, with no bias. At full resolution
+  /// each is measured against the template's wall under the edge (the tangent plane at the
+  /// nearest edge whose normal is the more level), with `edge_weight`; points more than
+  /// trim_outside_mm from it either way get none (material's outline, a wrong match).
+  const Cloud* occluding_edges = nullptr;
+  double edge_weight = 1.0;
   int threads = 0;
 };
 
