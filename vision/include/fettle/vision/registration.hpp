@@ -154,9 +154,11 @@ struct FineSettings {
   /// a depth jump, the point halfway between the last ray on the face and the first ray past
   /// it, at the face's range (occluding_edges()). The true edge lies anywhere between the two
   /// rays, so that point is on it give or take half a pixel, with no bias. At full resolution
-  /// each is measured against the template's wall under the edge (the tangent plane at the
-  /// nearest edge whose normal is the more level), with `edge_weight`; points more than
-  /// trim_outside_mm from it either way get none (material's outline, a wrong match).
+  /// each is measured against the template's wall under the edge: of the nearest template
+  /// point and its edge partner (edge_aware), the one whose normal is the more level (the
+  /// template's z is up, as for heights_only_slope_deg), if within about 17 degrees of level.
+  /// Weight `edge_weight`; points more than trim_outside_mm (else the correspondence
+  /// distance) from the wall either way get none (material's outline, a wrong match).
   const Cloud* occluding_edges = nullptr;
   double edge_weight = 1.0;
   int threads = 0;
