@@ -149,13 +149,23 @@ OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm
   return out;
 }
 
+namespace {
+/// Each pixel's range (distance from the camera), NaN where the pixel is invalid.
+std::vector<float> ranges(const OrganizedCloud& cloud) {
+  std::vector<float> range(cloud.size());
+  detail::parallel_for(cloud.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
+    for (std::size_t k = b; k < e; ++k)
+      range[k] = cloud.points[k].allFinite() ? cloud.points[k].norm() : std::numeric_limits<float>::quiet_NaN();
+  });
+  return range;
+}
+}  // namespace
+
 std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, double min_jump_mm, double tolerance_mm) {
   const std::size_t w = cloud.width, h = cloud.height;
   std::vector<std::uint8_t> mixed(cloud.size(), 0);
   if (min_jump_mm <= 0.0 || w * h != cloud.size() || w < 3 || h < 3) return mixed;
-  std::vector<float> range(cloud.size(), std::numeric_limits<float>::quiet_NaN());
-  for (std::size_t k = 0; k < cloud.size(); ++k)
-    if (cloud.points[k].allFinite()) range[k] = cloud.points[k].norm();
+  const std::vector<float> range = ranges(cloud);
   const auto jump = static_cast<float>(min_jump_mm);
   const auto tol = static_cast<float>(tolerance_mm);
   constexpr int du[8] = {1, -1, 0, 0, 1, 1, -1, -1};
@@ -196,7 +206,8 @@ Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_
   const std::size_t w = cloud.width, h = cloud.height;
   if (w * h != cloud.size() || w < 3 || h < 3) return out;
   const bool has_mixed = mixed.size() == cloud.size();
-  auto usable = [&](std::size_t k) { return cloud.points[k].allFinite() && !(has_mixed && mixed[k] != 0); };
+  const std::vector<float> range = ranges(cloud);
+  auto usable = [&](std::size_t k) { return !std::isnan(range[k]) && !(has_mixed && mixed[k] != 0); };
   const auto jump = static_cast<float>(std::max(0.0, min_jump_mm));
   constexpr int du[4] = {1, -1, 0, 0};
   constexpr int dv[4] = {0, 0, 1, -1};
@@ -210,21 +221,21 @@ Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_
         const auto k = static_cast<std::size_t>(v * iw + u);
         if (!usable(k)) continue;
         const Eigen::Vector3f& a = cloud.points[k];
-        const float ra = a.norm();
+        const float ra = range[k];
         for (int d = 0; d < 4; ++d) {
           int uu = u + du[d], vv = v + dv[d];
           if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
           auto n = static_cast<std::size_t>(vv * iw + uu);
-          if (!cloud.points[n].allFinite()) continue;  // a dropout: where the face ends is unknown
+          if (std::isnan(range[n])) continue;  // a dropout: where the face ends is unknown
           if (has_mixed && mixed[n] != 0) {            // past one mixed pixel
             uu += du[d], vv += dv[d];
             if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
             n = static_cast<std::size_t>(vv * iw + uu);
             if (!usable(n)) continue;
           }
-          const Eigen::Vector3f& p = cloud.points[n];
-          const float rb = p.norm();
+          const float rb = range[n];
           if (!(rb - ra > jump)) continue;
+          const Eigen::Vector3f& p = cloud.points[n];
           f.push_back((a / ra + p / rb).normalized() * ra);
         }
       }
