@@ -273,7 +273,7 @@ int main(int argc, char** argv) {
     std::printf("\nfettle vision::inspect, %d runs: median %.3f s (min %.3f, max %.3f)\n", runs, fettle_median,
                 *std::min_element(times.begin(), times.end()), *std::max_element(times.begin(), times.end()));
     std::printf("CPU time per run (all threads): median %.3f s; load average now %s\n", median(cpu), load_average().c_str());
-    for (const auto& [stage, s] : last->stage_seconds) std::printf("  %-28s %7.3f s\n", stage.c_str(), s);
+    for (const auto& [stage, s] : last->stage_seconds) std::printf("  %-32s %7.3f s\n", stage.c_str(), s);
     std::printf("peak RSS %.0f MiB (process; %.0f MiB before the stage: simulator and template)\n", peak, rss_before);
     for (std::size_t i = 0; i < fa.lines.size(); ++i) {
       const auto& truth = capture.truth.regions[i];

@@ -365,6 +365,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
                                         ": is it the right part (not the other hand of a pair), the right way round?"};
   Inspection out;
   out.whole = *best;
+  timer.mark("whole-part ICP, voxel grid");
   {
     // Then at the scene's full resolution, from that pose: a part seen from above is fixed
     // sideways by its edges, and a 3 mm voxel's centroid at an edge is up to a millimetre off
@@ -385,7 +386,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
       out.whole.converged = r->converged;
     }
   }
-  timer.mark("whole-part ICP");
+  timer.mark("whole-part ICP, full resolution");
   // Per region: fine ICP on the region's own template at the scene's full (template)
   // resolution, then the excess material.
   const Transform T_part_scene = out.whole.T_scene_template.inverse();
