@@ -227,7 +227,7 @@ Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_
           if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
           auto n = static_cast<std::size_t>(vv * iw + uu);
           if (std::isnan(range[n])) continue;  // a dropout: where the face ends is unknown
-          if (has_mixed && mixed[n] != 0) {            // past one mixed pixel
+          if (has_mixed && mixed[n] != 0) {    // past one mixed pixel
             uu += du[d], vv += dv[d];
             if (uu < 0 || uu >= iw || vv < 0 || vv >= ih) continue;
             n = static_cast<std::size_t>(vv * iw + uu);
