@@ -216,6 +216,10 @@ TEST(OccludingEdges, LieOnTheFacesEdgeWithinHalfAPixelWithoutBias) {
   o.points[k] *= 510.0f / o.points[k].z();
   const auto past = occluding_edges(o, mixed_pixels(o, 2.0, 0.3), 2.0);
   ASSERT_EQ(past.size(), o.height);
+  // The one-call form (inspect's) finds the same points past the same mixed pixels.
+  const auto one_call = occluding_edges(o, 2.0, 0.3);
+  ASSERT_EQ(one_call.size(), past.size());
+  for (std::size_t i = 0; i < past.size(); ++i) EXPECT_EQ(one_call.points[i], past.points[i]) << "edge point " << i;
   const auto row7 = std::find_if(past.points.begin(), past.points.end(),
                                  [](const Eigen::Vector3f& p) { return std::abs(p.y() / p.z() * 1000.0f + 19.5f - 7.0f) < 0.1f; });
   ASSERT_NE(row7, past.points.end());

@@ -547,7 +547,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
     const OrganizedCloud& scan = *view.cloud;
     const Eigen::Matrix3f R = view.T_fixture_camera.rotation().cast<float>();
     const Eigen::Vector3f t = view.T_fixture_camera.translation().cast<float>();
-    for (const auto& p : occluding_edges(scan, mixed_pixels(scan, kEdgeJumpMm, kMixedToleranceMm), kEdgeJumpMm).points) {
+    for (const auto& p : occluding_edges(scan, kEdgeJumpMm, kMixedToleranceMm).points) {
       const Eigen::Vector3f q = R * p + t;
       if (near.contains(q)) edges.points.push_back(q);
     }

@@ -129,13 +129,30 @@ Cloud remove_statistical_outliers(const Cloud& cloud, int k, double std_ratio) {
   return out;
 }
 
+namespace {
+/// Each pixel's range (distance from the camera), NaN where the pixel is invalid.
+std::vector<float> ranges(const OrganizedCloud& cloud) {
+  std::vector<float> range(cloud.size());
+  detail::parallel_for(cloud.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
+    for (std::size_t k = b; k < e; ++k)
+      range[k] = cloud.points[k].allFinite() ? cloud.points[k].norm() : std::numeric_limits<float>::quiet_NaN();
+  });
+  return range;
+}
+
+/// mixed_pixels on the cloud's ranges (ranges()).
+std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, const std::vector<float>& range, double min_jump_mm,
+                                       double tolerance_mm);
+/// occluding_edges on the cloud's ranges (ranges()).
+Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<float>& range, const std::vector<std::uint8_t>& mixed,
+                      double min_jump_mm);
+}  // namespace
+
 OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm) {
   OrganizedCloud out = cloud;
   const std::size_t w = cloud.width, h = cloud.height;
   if (max_jump_mm <= 0.0 || w * h != cloud.size()) return out;
-  std::vector<float> range(cloud.size(), std::numeric_limits<float>::quiet_NaN());
-  for (std::size_t k = 0; k < cloud.size(); ++k)
-    if (cloud.points[k].allFinite()) range[k] = cloud.points[k].norm();
+  const std::vector<float> range = ranges(cloud);
   const auto jump = static_cast<float>(max_jump_mm);
   for (std::size_t v = 0; v < h; ++v)
     for (std::size_t u = 0; u < w; ++u) {
@@ -149,23 +166,25 @@ OrganizedCloud remove_jump_edges(const OrganizedCloud& cloud, double max_jump_mm
   return out;
 }
 
-namespace {
-/// Each pixel's range (distance from the camera), NaN where the pixel is invalid.
-std::vector<float> ranges(const OrganizedCloud& cloud) {
-  std::vector<float> range(cloud.size());
-  detail::parallel_for(cloud.size(), detail::thread_count(0), [&](std::size_t, std::size_t b, std::size_t e) {
-    for (std::size_t k = b; k < e; ++k)
-      range[k] = cloud.points[k].allFinite() ? cloud.points[k].norm() : std::numeric_limits<float>::quiet_NaN();
-  });
-  return range;
-}
-}  // namespace
-
 std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, double min_jump_mm, double tolerance_mm) {
+  return mixed_pixels(cloud, ranges(cloud), min_jump_mm, tolerance_mm);
+}
+
+Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_t>& mixed, double min_jump_mm) {
+  return occluding_edges(cloud, ranges(cloud), mixed, min_jump_mm);
+}
+
+Cloud occluding_edges(const OrganizedCloud& cloud, double min_jump_mm, double mixed_tolerance_mm) {
+  const std::vector<float> range = ranges(cloud);
+  return occluding_edges(cloud, range, mixed_pixels(cloud, range, min_jump_mm, mixed_tolerance_mm), min_jump_mm);
+}
+
+namespace {
+std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, const std::vector<float>& range, double min_jump_mm,
+                                       double tolerance_mm) {
   const std::size_t w = cloud.width, h = cloud.height;
   std::vector<std::uint8_t> mixed(cloud.size(), 0);
   if (min_jump_mm <= 0.0 || w * h != cloud.size() || w < 3 || h < 3) return mixed;
-  const std::vector<float> range = ranges(cloud);
   const auto jump = static_cast<float>(min_jump_mm);
   const auto tol = static_cast<float>(tolerance_mm);
   constexpr int du[8] = {1, -1, 0, 0, 1, 1, -1, -1};
@@ -201,12 +220,12 @@ std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, double min_j
   return mixed;
 }
 
-Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_t>& mixed, double min_jump_mm) {
+Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<float>& range, const std::vector<std::uint8_t>& mixed,
+                      double min_jump_mm) {
   Cloud out;
   const std::size_t w = cloud.width, h = cloud.height;
   if (w * h != cloud.size() || w < 3 || h < 3) return out;
   const bool has_mixed = mixed.size() == cloud.size();
-  const std::vector<float> range = ranges(cloud);
   auto usable = [&](std::size_t k) { return !std::isnan(range[k]) && !(has_mixed && mixed[k] != 0); };
   const auto jump = static_cast<float>(std::max(0.0, min_jump_mm));
   constexpr int du[4] = {1, -1, 0, 0};
@@ -243,6 +262,7 @@ Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_
   for (auto& f : found) out.points.insert(out.points.end(), f.begin(), f.end());
   return out;
 }
+}  // namespace
 
 OrganizedCloud remove_statistical_outliers(const OrganizedCloud& cloud, int window_radius, double std_ratio) {
   if (window_radius <= 0 || cloud.width == 0 || cloud.height == 0) return cloud;

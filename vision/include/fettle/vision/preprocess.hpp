@@ -52,6 +52,10 @@ std::vector<std::uint8_t> mixed_pixels(const OrganizedCloud& cloud, double min_j
 /// from mixed_pixels (empty: none).
 Cloud occluding_edges(const OrganizedCloud& cloud, const std::vector<std::uint8_t>& mixed, double min_jump_mm);
 
+/// occluding_edges past the pixels mixed_pixels(cloud, min_jump_mm, mixed_tolerance_mm) finds,
+/// each pixel's range computed once for both.
+Cloud occluding_edges(const OrganizedCloud& cloud, double min_jump_mm, double mixed_tolerance_mm);
+
 /// Normals from the k nearest neighbours (PCA), oriented towards `viewpoint`.
 void estimate_normals(Cloud& cloud, int k, const Eigen::Vector3f& viewpoint = Eigen::Vector3f::Zero());
 
