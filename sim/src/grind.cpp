@@ -354,7 +354,16 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
     Vec3 deepest = c;
     if (tool.shape == config::ToolShape::ball) {
       depth = tool.radius - m.golden_sdf(c);
-      deepest = c - tool.radius * Vec3::UnitZ();
+      if (depth > opt.gouge_threshold_mm) {  // the ball's point toward the nearest surface: a wall beside it too
+        constexpr double h = 0.01;
+        Vec3 g;
+        for (int k = 0; k < 3; ++k) {
+          Vec3 dp = Vec3::Zero();
+          dp(k) = h;
+          g(k) = m.golden_sdf(c + dp) - m.golden_sdf(c - dp);
+        }
+        deepest = c - tool.radius * (g.norm() > 1e-12 ? Vec3(g.normalized()) : Vec3(Vec3::UnitZ()));
+      }
     } else {
       const auto [d, q] = deepest_point(
           profile, [&](const Vec3& x) { return -m.golden_sdf(x); }, [&](const Vec3& x) { return Vec3(c + R_part_tool * x); });

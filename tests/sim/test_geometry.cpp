@@ -220,6 +220,28 @@ TEST(SimGeometry, GoldenTemplateHasNoMaterialAndItsSamplesLieOnItsSurface) {
   EXPECT_NEAR(g.distance_to_golden_mm(fettle::Vec3(fl.center_mm[0], fl.center_mm[1], fl.top_z_mm + 2.0)), 2.0, 1e-3);
 }
 
+// The gouge account's distance beside the block with the tilted top (x 55..110, its top 8 deg
+// from level: at x = 55 it is 36.1 mm high, not the untilted 40): a ball passing the block at
+// the end of the straight flash keeps 1.7 mm from its edge, and the distance says so. The
+// untilted box's distance read 5.89 mm from the ball's centre where the base top is 6.05 away
+// (a 0.1 mm gouge of a 12 mm ball that touches nothing); the surface samples agree with the exact one.
+TEST(SimGeometry, GoldenDistanceBesideATiltedBlockIsExact) {
+  const auto recipe = sim_test::pump_body();
+  const auto g = Casting::golden(recipe, 1);
+  const fettle::Vec3 ball_centre(49.2, -70.0, 41.05);
+  EXPECT_NEAR(g.golden_sdf_mm(ball_centre), 41.05 - 35.0, 1e-9);  // the base top, not the block
+  EXPECT_NEAR(g.distance_to_golden_mm(ball_centre), 6.05, 0.1);
+  // nearest the block's low edge (55, y, 36.135): diagonally off it
+  const double slope = std::tan(8.0 * pi() / 180.0);
+  const double edge_z = 40.0 + slope * (55.0 - 82.5);
+  const fettle::Vec3 beside(53.0, -70.0, 37.5);
+  EXPECT_NEAR(g.golden_sdf_mm(beside), std::hypot(2.0, 37.5 - edge_z), 1e-9);
+  EXPECT_NEAR(g.distance_to_golden_mm(beside), std::hypot(2.0, 37.5 - edge_z), 0.1);
+  // inside the block: the tilted top's plane distance, as before
+  const fettle::Vec3 in(100.0, -20.0, 39.0);
+  EXPECT_NEAR(g.golden_sdf_mm(in), (39.0 - (40.0 + slope * (100.0 - 82.5))) * std::cos(8.0 * pi() / 180.0), 1e-9);
+}
+
 class BadPartFile : public ::testing::Test {
  protected:
   std::filesystem::path write(const std::string& from, const std::string& to) {
