@@ -94,6 +94,7 @@ void read_cell(TableReader& root, CellConfig& cfg) {
     t->number("max_speed_mm_s", s.max_speed_mm_s, {0.1, 5000.0});
     t->number("max_spindle_rpm", s.max_spindle_rpm, {1.0, 100000.0});
     t->number("safe_height_mm", s.safe_height_mm, {0.0, 2000.0});
+    t->number("min_clearance_mm", s.min_clearance_mm, {0.0, 10.0});
   }
   if (auto t = root.table("control")) t->path("socket", cfg.control.socket);
   if (auto t = root.table("records")) {
@@ -124,6 +125,8 @@ void read_part(TableReader& root, PartRecipe& part) {
     t->number("nok_max_share_gouged_pct", v.nok_max_share_gouged_pct, {0.0, 100.0});
     t->number("max_regrind_height_mm", v.max_regrind_height_mm, {0.0, 100.0});
     t->number("jump_edge_mm", v.jump_edge_mm, {0.0, 1000.0});
+    t->number("footprint_margin_mm", v.footprint_margin_mm, {0.0, 100.0});
+    t->number("gouge_confirm_radius_mm", v.gouge_confirm_radius_mm, {0.1, 20.0});
   }
   if (auto t = root.table("fixture")) {
     auto& f = part.fixture;

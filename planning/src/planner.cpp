@@ -18,6 +18,14 @@ constexpr std::size_t kMinRegionPoints = 20;
 constexpr double kSweepStepMm = 1.0;  ///< validation samples moves between points this finely
 constexpr double kBackoffTolMm = 0.002;  ///< a back-off leaves at most this much more than needed
 constexpr double kProbeNearMm = 2.0;     ///< tool_penetration_mm: probes are exact at least this near
+/// validate(): a pose nearer the template than the clearance by more than this is a gouge. The
+/// planner's back-offs land within kBackoffTolMm of the clearance, but two nearly equal poses
+/// can read up to about 0.005 mm apart: a flat end face on a flat face has many equally deep
+/// samples, the search around the deepest one starts from whichever rounding makes first, and
+/// the signed-distance grid's interpolation beside an edge is uneven at that scale.
+constexpr double kValidateTolMm = 0.01;
+/// tool_penetration_mm: a cylinder's samples this near the decision are searched around.
+constexpr double kRefineMarginMm = 0.5;
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};
@@ -499,6 +507,22 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
     if (layer.empty())
       return region_error(region.name, "gouge",
                           "layer " + std::to_string(segment) + ": no raster point lets the tool pass without cutting the template");
+    // The moves between directly connected raster points (a row, the step to the next row) keep
+    // the allowance too, as validation samples them: beside the pad's edge a sample between two
+    // clear points can come nearer than they do (test RiserPlan.LayersCoverTheFootprintAndLeaveTheAllowance).
+    for (std::size_t k0 = 0; k0 < layer.size();) {
+      std::size_t k1 = k0 + 1;
+      while (k1 < layer.size() && !layer[k1].second) ++k1;
+      std::vector<Transform> run;
+      for (std::size_t k = k0; k < k1; ++k) run.push_back(layer[k].first);
+      if (!clear_moves(tool, run, std::vector<Vec3>(run.size(), up), in.template_sdf, region.allowance_mm,
+                       settings.max_backoff_mm))
+        return region_error(region.name, "gouge",
+                            "layer " + std::to_string(segment) + ": the moves between the raster points from " +
+                                fmt(run.front().translation()) + " cannot keep the allowance from the template");
+      for (std::size_t k = k0; k < k1; ++k) layer[k].first = run[k - k0];
+      k0 = k1;
+    }
     if (segment > 0) {
       const Transform from = plan.points.empty() ? layer.front().first
                                                  : in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform();
@@ -557,10 +581,63 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
   const int passes = std::max(1, region.passes);
   for (int k = 1; k <= passes; ++k)
     plan.layer_levels_mm.push_back(plan.max_excess_mm - k * (plan.max_excess_mm - region.allowance_mm) / passes);
+
+  // The pass follows the face under the line (its point along -up below each station), the tool
+  // tip `level` above it. A station fits where the tool there keeps the allowance from the whole
+  // template: beside a wall, a boss or a clamp's face it does not, and the pass ends before it
+  // (no back-off up a wall: that would ramp the tool over material it cannot reach). The pass
+  // runs over the material [smin, smax] and a lead of the tool radius plus lead_mm beyond each
+  // end, each side cut at its first station that does not fit, walking out from the material's
+  // middle (tests StraightPlan.AFinThatRunsIntoAWallIsGroundUpToItAndTheRestIsLeft,
+  // Validate.ALeadOutIntoAWallOutsideTheRoiIsRefused).
   const double ext = tool_radius(tool) + settings.lead_mm;
-  smin -= ext, smax += ext;
   const double spacing = std::clamp(region.point_spacing_mm, 0.05, 1.0);
-  const auto n = static_cast<int>(std::ceil((smax - smin) / spacing - 1e-9)) + 1;
+  const double R = tool_radius(tool);
+  auto station = [&](double s, double level) -> std::optional<Transform> {
+    const Vec3 above = frame->base + s * t;
+    const auto d = find_level(in.template_sdf, above, -up, 0.0, 3.0 * settings.flash_band_mm + 10.0, 0.25);
+    if (!d) return std::nullopt;  // no face under the line here (past the part's edge)
+    const Vec3 face = above - *d * up;
+    if (std::abs(*d) > settings.flash_band_mm + level) return std::nullopt;  // a step: another face
+    Transform T = frame_from(face + level * up, up, t);
+    if (tool_penetration_mm(tool, T, in.template_sdf, nullptr, region.allowance_mm) + region.allowance_mm > kBackoffTolMm)
+      return std::nullopt;
+    return T;
+  };
+  const double smid = 0.5 * (smin + smax);
+  const double lowest = plan.layer_levels_mm.back();
+  if (!station(smid, lowest))
+    return region_error(region.name, "gouge",
+                        "the tool '" + tool.name + "' cannot reach the flash at " + fmt(frame->base + smid * t) +
+                            " (part frame) without coming nearer the template than allowance_mm = " +
+                            fmt(region.allowance_mm, 3) + " mm");
+  // the reach of each side at the lowest level (the levels above reach at least as far): the
+  // last station that fits, walking out from the middle
+  auto reach = [&](double dir) {
+    const double limit = dir > 0 ? smax + ext : smin - ext;
+    double last = smid;
+    for (double s = smid + dir * spacing; dir > 0 ? s <= limit + 1e-9 : s >= limit - 1e-9; s += dir * spacing) {
+      if (!station(s, lowest)) break;
+      last = s;
+    }
+    return last;
+  };
+  const double s_lo = reach(-1.0), s_hi = reach(+1.0);
+  // Material the tool cannot reach: excess points beyond either end of the pass farther than the
+  // tool reaches at their height (a ball's half-width there, a cylinder's radius).
+  double left_lo = std::numeric_limits<double>::infinity(), left_hi = -left_lo;
+  for (std::size_t k = 0; k < pts.size(); ++k) {
+    const double sp = (pts[k] - frame->base).dot(t);
+    if (sp < smin - 1e-9 || sp > smax + 1e-9) continue;
+    const double h = in.template_sdf(pts[k]) - lowest;
+    if (h <= 0.0) continue;
+    const double half = tool.shape == config::ToolShape::ball && h < R ? std::sqrt(h * (2 * R - h)) : R;
+    if (sp > s_lo - half && sp < s_hi + half) continue;
+    left_lo = std::min(left_lo, sp), left_hi = std::max(left_hi, sp);
+    if (h + lowest > plan.left_mm) plan.left_mm = h + lowest, plan.left_at = pts[k];
+  }
+  if (left_hi >= left_lo) plan.left_length_mm = left_hi - left_lo;
+  const auto n = static_cast<int>(std::ceil((s_hi - s_lo) / spacing - 1e-9)) + 1;
   const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
   const double air = std::min(settings.air_speed_mm_s, settings.max_speed_mm_s);
   int segment = 0;
@@ -568,13 +645,14 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
     std::vector<Transform> pass;
     const bool forward = segment % 2 == 0;
     for (int i = 0; i < n; ++i) {
-      const double s = std::min(smax, smin + (forward ? i : n - 1 - i) * spacing);
-      Transform T = frame_from(frame->base + s * t + level * up, up, forward ? t : Vec3(-t));
-      if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm))
+      const double s = forward ? std::min(s_hi, s_lo + i * spacing) : std::max(s_lo, s_hi - i * spacing);
+      auto T = station(s, level);
+      if (!T)  // a higher level reaches as far as the lowest unless a face overhangs the line
         return region_error(region.name, "gouge",
-                            "pass " + std::to_string(segment) + " point at " + fmt(T.translation()) +
-                                ": the tool cannot pass without cutting the template");
-      pass.push_back(T);
+                            "pass " + std::to_string(segment) + " at " + fmt(frame->base + s * t + level * up) +
+                                " (part frame): the tool cannot pass without coming nearer the template than "
+                                "allowance_mm = " + fmt(region.allowance_mm, 3) + " mm (an overhang above the flash?)");
+      pass.push_back(*T);
     }
     if (segment > 0)
       if (auto e = add_lift(plan, in, in.T_base_part.inverse() * plan.points.back().T_base_tool.to_transform(),
@@ -611,6 +689,7 @@ PlannerSettings PlannerSettings::from(const config::SafetySection& safety) {
   s.max_speed_mm_s = safety.max_speed_mm_s;
   s.max_spindle_rpm = safety.max_spindle_rpm;
   s.safe_height_mm = safety.safe_height_mm;
+  s.min_clearance_mm = safety.min_clearance_mm;
   s.air_speed_mm_s = std::min(s.air_speed_mm_s, safety.max_speed_mm_s);
   return s;
 }
@@ -650,36 +729,58 @@ double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_too
   const Vec3 z = T_part_tool.linear().col(2);
   const Vec3 tip = T_part_tool.translation();
   if (tool.shape == config::ToolShape::ball) {
-    if (deepest != nullptr) *deepest = tip + R * z;
-    return R - sdf(tip + R * z);  // exact for a true distance
+    const Vec3 centre = tip + R * z;
+    const double d = sdf(centre);
+    if (deepest != nullptr) {  // the ball's point toward the nearest surface
+      const Vec3 g = sdf_gradient(sdf, centre, 0.05);
+      *deepest = centre - R * (g.norm() > 1e-9 ? Vec3(g.normalized()) : Vec3(-z));
+    }
+    return R - d;  // exact for a true distance
   }
-  // cylinder (cones conservatively as cylinders): end face discs, rim rings
-  // Each probe's distance matters only within the clearance or penetration being decided
-  // (exact_within_mm, at least kProbeNearMm); a probe farther off reads farther either way.
+  // cylinder and disc (cones conservatively as cylinders): the profile from the end face's
+  // centre out to the rim and up the side, turned about the axis. Each probe's distance matters
+  // only within the clearance or penetration being decided (exact_within_mm, at least
+  // kProbeNearMm); a probe farther off reads farther either way.
   const double near_mm = std::max(kProbeNearMm, std::abs(exact_within_mm));
-  double worst = -std::numeric_limits<double>::infinity();
-  auto probe = [&](const Vec3& p) {
+  const double L = std::max(0.0, tool.length_mm);
+  const std::array<Eigen::Vector2d, 5> nodes{Eigen::Vector2d(0.0, 0.0), Eigen::Vector2d(0.5 * R, 0.0),
+                                             Eigen::Vector2d(R, 0.0), Eigen::Vector2d(R, 0.5 * L),
+                                             Eigen::Vector2d(R, L)};
+  constexpr std::array<int, 5> kAngles{1, 8, 24, 24, 24};
+  const Vec3 x = T_part_tool.linear().col(0), y = T_part_tool.linear().col(1);
+  // the surface point at profile parameter t (node index, fractional between nodes) and angle a
+  auto surface = [&](double t, double a) {
+    t = std::clamp(t, 0.0, static_cast<double>(nodes.size() - 1));
+    const auto i = std::min(static_cast<std::size_t>(t), nodes.size() - 2);
+    const Eigen::Vector2d rz = nodes[i] + (t - static_cast<double>(i)) * (nodes[i + 1] - nodes[i]);
+    return Vec3(tip + rz.x() * (std::cos(a) * x + std::sin(a) * y) + rz.y() * z);
+  };
+  double worst = -std::numeric_limits<double>::infinity(), wt = 0.0, wa = 0.0;
+  auto probe = [&](double t, double a) {
+    const Vec3 p = surface(t, a);
     const double pen = -sdf.near(p, near_mm);
     if (pen > worst) {
-      worst = pen;
+      worst = pen, wt = t, wa = a;
       if (deepest != nullptr) *deepest = p;
     }
   };
-  const Vec3 x = T_part_tool.linear().col(0), y = T_part_tool.linear().col(1);
-  probe(tip);
-  const double L = std::max(0.0, tool.length_mm);
-  for (double frac : {0.5, 1.0}) {
-    const double r = frac * R;
-    const int m = frac < 1.0 ? 8 : 24;
-    for (int k = 0; k < m; ++k) {
-      const double a = 2 * std::numbers::pi * k / m;
-      const Vec3 p = tip + r * (std::cos(a) * x + std::sin(a) * y);
-      probe(p);
-      if (frac == 1.0) {
-        probe(p + 0.5 * L * z);
-        probe(p + L * z);
-      }
+  for (std::size_t i = 0; i < nodes.size(); ++i)
+    for (int k = 0; k < kAngles[i]; ++k) probe(static_cast<double>(i), 2 * std::numbers::pi * k / kAngles[i]);
+  // Near the decision, the deepest sample's neighbourhood: between two rim samples 15 degrees
+  // apart the rim of a 40 mm disc sags 0.17 mm, and a convex template edge can reach the end
+  // face between the rings. First in angle, then along the profile (test
+  // ToolPenetration.ACylinderBetweenItsSamplesIsFound).
+  if (worst > -(std::abs(exact_within_mm) + kRefineMarginMm)) {
+    const double t0 = wt;
+    const double da = 2 * std::numbers::pi / 24.0;
+    if (t0 > 0.5) {
+      const double a0 = wa;
+      for (int k = -8; k <= 8; ++k)
+        if (k != 0) probe(t0, a0 + k * da / 8.0);
     }
+    const double a1 = wa, t1 = wt;
+    for (int k = -8; k <= 8; ++k)
+      if (const double t = t1 + k / 8.0; k != 0 && t >= 0.0 && t <= static_cast<double>(nodes.size() - 1)) probe(t, a1);
   }
   return worst;
 }
@@ -701,6 +802,12 @@ Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& set
   plan.type = in.region->type;
   if (in.tool->diameter_mm <= 0)
     return region_error(plan.region, "input", "tool '" + in.tool->name + "' has no diameter");
+  if (in.region->allowance_mm < settings.min_clearance_mm - 1e-9)
+    return region_error(plan.region, "clearance",
+                        "allowance_mm = " + fmt(in.region->allowance_mm, 3) + " is less than the cell's [safety] "
+                        "min_clearance_mm = " + fmt(settings.min_clearance_mm, 3) +
+                        ": the last pass would grind nearer the surface than the cell can place it; raise the region's "
+                        "allowance_mm");
   if (in.excess_points_part.size() < kMinRegionPoints) return plan;  // nothing (left) to grind
   switch (in.region->type) {
     case config::RegionType::ring_flash:
@@ -838,6 +945,7 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
   std::map<std::string, const RegionInput*> by_name;
   for (const auto& in : inputs)
     if (in.region != nullptr) by_name[in.region->name] = &in;
+  const double clearance = settings.min_clearance_mm;
   for (std::size_t i = 0; i < trajectory.points.size(); ++i) {
     const auto& p = trajectory.points[i];
     if (auto e = check_limits(trajectory, i, settings)) return *e;
@@ -848,24 +956,29 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
       return fail("input", "the segment " + std::to_string(p.segment) + " names no planned region");
     const RegionInput& in = *it->second;
     const Transform T_part_base = in.T_base_part.inverse();
-    const double allowance = in.region->allowance_mm;
-    const double pen =
-        tool_penetration_mm(*in.tool, T_part_base * p.T_base_tool.to_transform(), in.template_sdf, nullptr, allowance);
-    if (pen > allowance + 1e-6)
-      return fail("gouge", "the tool cuts " + fmt(pen, 3) + " mm into the template (allowed: " + fmt(allowance, 3) + " mm)");
-    // The move onto this point (approach descents, lifts, leads): sampled every
-    // kSweepStepMm with the tool of this point's region.
+    // The tool's depth into the template (> 0 inside) and its deepest point: a gouge where the
+    // tool comes nearer than the clearance, by more than a back-off's tolerance.
+    auto gouge = [&](const Pose& m, const std::string& where) -> std::optional<Error> {
+      Vec3 deepest = Vec3::Zero();
+      const double pen =
+          tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf, &deepest, clearance);
+      if (pen + clearance <= kValidateTolMm) return std::nullopt;
+      const std::string depth = pen > 0.0 ? "reaches " + fmt(pen, 3) + " mm into the template"
+                                          : "comes within " + fmt(-pen, 3) + " mm of the template";
+      return fail("gouge", where + "the tool '" + in.tool->name + "' " + depth + " at " + fmt(deepest) +
+                               " mm (part frame); every pose must keep [safety] min_clearance_mm = " +
+                               fmt(clearance, 3) + " mm from it");
+    };
+    if (auto e = gouge(p.T_base_tool, "")) return *e;
+    // The move onto this point (approach descents, lifts, leads, moves between passes and
+    // regions): sampled every kSweepStepMm with the tool of this point's region.
     if (i > 0) {
-      std::optional<Error> gouge;
+      std::optional<Error> hit;
       for_each_move_sample(trajectory.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {
-        const double pm = tool_penetration_mm(*in.tool, T_part_base * m.to_transform(), in.template_sdf, nullptr, allowance);
-        if (pm <= allowance + 1e-6) return true;
-        gouge = fail("gouge", "on the move from point " + std::to_string(i - 1) + " at " + fmt(m.position_mm) +
-                                  " mm (base) the tool cuts " + fmt(pm, 3) + " mm into the template (allowed: " +
-                                  fmt(allowance, 3) + " mm)");
-        return false;
+        hit = gouge(m, "on the move from point " + std::to_string(i - 1) + ", at " + fmt(m.position_mm) + " mm (base), ");
+        return !hit;
       });
-      if (gouge) return *gouge;
+      if (hit) return *hit;
     }
   }
   return {};

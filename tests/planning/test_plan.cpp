@@ -326,13 +326,56 @@ TEST(StraightPlan, StrayExcessPointsAlongTheLineDoNotStretchThePasses) {
   ASSERT_TRUE(tall) << tall.error().message;
   EXPECT_NEAR(tall->max_excess_mm, 4.5, 0.05);
   // A second piece as long as the fin is flash too: the passes cover both.
-  for (double x = 30.0; x <= 120.0; x += 0.5) in.excess_points_part.emplace_back(x, -70.0, 36.0);
+  for (const auto& p : testing::straight_fin(10.0, 40.0, -70.0, 35.0, 1.0, 1.0, 0.5)) in.excess_points_part.push_back(p);
   const auto both = plan_region(in, PlannerSettings{});
   ASSERT_TRUE(both) << both.error().message;
   xmax = -1e9;
   for (const auto& p : both->points)
     if (p.kind == MoveKind::grind) xmax = std::max(xmax, p.T_base_tool.position_mm.x());
-  EXPECT_GT(xmax, 120.0 + 6.0);
+  EXPECT_GT(xmax, 40.0 + 6.0);
+  EXPECT_EQ(both->left_length_mm, 0.0);
+}
+
+// A fin that runs up to a wall (the boss block's at x = 62, outside the region's ROI): the
+// passes end where the ball keeps the allowance from the wall, never ramping up it, and the
+// fin the ball cannot reach there is left and reported with its length and height. On the
+// simulator's pump body a 150 mm fin runs up to the tilted block's wall the same way.
+TEST(StraightPlan, AFinThatRunsIntoAWallIsGroundUpToItAndTheRestIsLeft) {
+  auto scene = make_scene();
+  auto& in = scene.inputs[3];
+  in.excess_points_part = testing::straight_fin(-40.0, 62.0, -70.0, 35.0, 2.0, 1.0, 0.5);
+  const PlannerSettings settings;
+  const auto plan = plan_region(in, settings);
+  ASSERT_TRUE(plan) << plan.error().message;
+  const double R = 6.0, allowance = in.region->allowance_mm;
+  double xmax = -1e9;
+  for (const auto& p : plan->points) {
+    if (p.kind != MoveKind::grind) continue;
+    const Vec3& x = p.T_base_tool.position_mm;
+    xmax = std::max(xmax, x.x());
+    // on the face at its level, never lifted over the wall: the tip within the fin's height
+    EXPECT_LT(x.z(), 35.0 + 2.0 + 1e-6) << x.transpose();
+    // and the ball keeps the allowance from the whole template
+    EXPECT_LE(tool_penetration_mm(*in.tool, p.T_base_tool.to_transform(), in.template_sdf, nullptr, allowance),
+              -allowance + 0.003)
+        << x.transpose();
+  }
+  // the ball's centre (R + allowance above the face at 35) passes the wall's top edge (62, 40)
+  // at R + allowance
+  const double centre_over_edge = 35.0 + allowance + R - 40.0;
+  const double x_limit = 62.0 - std::sqrt((R + allowance) * (R + allowance) - centre_over_edge * centre_over_edge);
+  EXPECT_LE(xmax, x_limit + 1e-6);
+  EXPECT_GT(xmax, x_limit - 1.01);  // as near as the point spacing allows
+  // what the ball cannot reach: the last millimetres of the fin before the wall, up to its full
+  // height (2 mm; the height is the distance to the template, so beside the wall the wall's)
+  EXPECT_GT(plan->left_length_mm, 1.0);
+  EXPECT_LT(plan->left_length_mm, 8.0);
+  EXPECT_GT(plan->left_mm, 1.0);
+  EXPECT_LE(plan->left_mm, 2.0 + 1e-6);
+  EXPECT_GT(plan->left_at.x(), 55.0);
+  // the whole region validates with the cell's clearance, leads and lifts included
+  const auto traj = plan_part("p", {in}, settings);
+  ASSERT_TRUE(traj) << traj.error().message;
 }
 
 RegionPlan line_plan(const std::string& name, double x) {

@@ -108,6 +108,81 @@ TEST(Validate, GougeRuleCatchesAToolInsideTheTemplate) {
   expect_rejected(validate(p.traj, p.scene.inputs, PlannerSettings{}), "gouge", "riser", i);
 }
 
+// A lead-out that runs on past the fin toward the boss block's wall (x = 62), outside every
+// region's ROI (the straight flash's ends at x = 40): validation checks every pose against the
+// whole template, not the region's ROI, and names the region, the point, the place and the depth.
+TEST(Validate, ALeadOutIntoAWallOutsideTheRoiIsRefused) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const std::size_t i = p.last_grind_of("side-parting-line");
+  ASSERT_LT(i, p.traj.points.size());
+  auto& x = p.traj.points[i].T_base_tool.position_mm;
+  x = Vec3(58.0, -70.0, 35.05);  // the ball (R 6) reaches x = 64: past the wall's top edge (62, 40)
+  const auto st = validate(p.traj, p.scene.inputs, PlannerSettings{});
+  expect_rejected(st, "gouge", "side-parting-line", i);
+  const std::string& m = st.error().message;
+  EXPECT_NE(m.find("reaches"), std::string::npos) << m;
+  EXPECT_NE(m.find("mm into the template at ("), std::string::npos) << m;
+  EXPECT_NE(m.find("(part frame)"), std::string::npos) << m;
+  EXPECT_NE(m.find("min_clearance_mm"), std::string::npos) << m;
+}
+
+// The clearance is the cell's, whatever the region's allowance: a grinding pose 0.03 mm over
+// the face is refused with a clearance of 0.05 mm and passes with 0.02; a region whose allowance
+// is below the clearance is refused before it is planned.
+TEST(Validate, EveryPoseKeepsTheCellsClearance) {
+  auto p = planned();
+  ASSERT_FALSE(p.traj.points.empty());
+  const std::size_t i = p.last_grind_of("riser") - 3;  // in the last layer, 0.05 mm above the face
+  ASSERT_NEAR(p.traj.points[i].T_base_tool.position_mm.z(), 45.05, 1e-3);
+  p.traj.points[i].T_base_tool.position_mm.z() = 45.03;
+  PlannerSettings settings;
+  settings.min_clearance_mm = 0.05;
+  const auto st = validate(p.traj, p.scene.inputs, settings);
+  expect_rejected(st, "gouge", "riser", i);
+  EXPECT_NE(st.error().message.find("comes within 0.030 mm of the template"), std::string::npos) << st.error().message;
+  settings.min_clearance_mm = 0.02;
+  EXPECT_TRUE(validate(p.traj, p.scene.inputs, settings));
+
+  auto scene = make_scene();
+  PlannerSettings strict;
+  strict.min_clearance_mm = 0.1;  // above the riser's 0.05 mm allowance
+  const auto refused = plan_region(scene.inputs[1], strict);
+  ASSERT_FALSE(refused);
+  EXPECT_EQ(refused.error().code, "planning.clearance");
+  EXPECT_NE(refused.error().message.find("region 'riser'"), std::string::npos) << refused.error().message;
+  EXPECT_NE(refused.error().message.find("allowance_mm"), std::string::npos) << refused.error().message;
+}
+
+// A cylinder's penetration between its samples: the rim of a 40 mm disc against a wall, with
+// the wall's normal halfway between two of the rim's 24 samples (which alone read 0.07 mm clear
+// for a rim 0.10 mm into the wall).
+TEST(ToolPenetration, ACylinderBetweenItsSamplesIsFound) {
+  config::Tool disc;
+  disc.name = "disc";
+  disc.shape = config::ToolShape::cylinder;
+  disc.diameter_mm = 40.0;
+  disc.length_mm = 6.0;
+  const SignedDistance wall = [](const Vec3& p) { return 100.0 - p.x(); };  // body at x > 100
+  Transform T = Transform::Identity();
+  T.linear() = Eigen::AngleAxisd(deg_to_rad(7.5), Vec3::UnitZ()).toRotationMatrix();
+  T.translation() = Vec3(80.1, 0.0, 0.0);
+  Vec3 deepest = Vec3::Zero();
+  EXPECT_NEAR(tool_penetration_mm(disc, T, wall, &deepest, 0.05), 0.1, 0.002);
+  EXPECT_NEAR(deepest.x(), 100.1, 0.002);
+  EXPECT_NEAR(deepest.y(), 0.0, 0.05);
+  // a ball's deepest point faces the wall, not the floor
+  config::Tool ball;
+  ball.name = "ball";
+  ball.shape = config::ToolShape::ball;
+  ball.diameter_mm = 12.0;
+  Transform B = Transform::Identity();
+  B.translation() = Vec3(94.5, 3.0, 0.0);
+  EXPECT_NEAR(tool_penetration_mm(ball, B, wall, &deepest, 0.05), 0.5, 1e-9);
+  EXPECT_NEAR(deepest.x(), 100.5, 0.01);
+  EXPECT_NEAR(deepest.z(), 6.0, 0.01);
+}
+
 TEST(Validate, AHostileRecipeIsRefused) {
   // regions with a feed beyond the cell's limit: no trajectory comes out
   {

@@ -40,6 +40,10 @@ struct SafetySection {
   double max_speed_mm_s = 250.0;
   double max_spindle_rpm = 12000.0;
   double safe_height_mm = 100.0;  ///< air moves at least this far above the part
+  /// Every pose of a trajectory keeps the tool at least this far from the located template
+  /// (planning::validate): the cell's stated uncertainty of where the part's surface is
+  /// (localisation, calibration, robot path). A region's allowance_mm must be at least this.
+  double min_clearance_mm = 0.05;
 };
 
 struct ControlSection {

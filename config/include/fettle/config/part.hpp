@@ -82,6 +82,12 @@ struct VerificationSettings {
   /// Flying pixels of the re-scan: drop a pixel whose range jumps more than this to a neighbour
   /// (as vision.jump_edge_mm, for the verification only); 0 = off.
   double jump_edge_mm = 0.0;
+  /// Gouges are looked for in every ROI and wherever the tool went: within the tool's radius
+  /// plus this of every uploaded pose and move (the swept footprint).
+  double footprint_margin_mm = 2.0;
+  /// A gouge is confirmed by the re-scan points within this radius of it: their median lies
+  /// more than gouge_depth_mm below the template (one noisy point is not a gouge).
+  double gouge_confirm_radius_mm = 1.0;
 };
 
 struct PartRecipe {

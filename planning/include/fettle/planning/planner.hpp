@@ -67,6 +67,11 @@ struct PlannerSettings {
   double max_speed_mm_s = 250.0;
   double max_spindle_rpm = 12000.0;
   double safe_height_mm = 100.0;    ///< air moves this far above the highest planned point
+  /// Every pose of a trajectory, and every move between two, keeps the tool at least this far
+  /// from the template (validate()): the cell's [safety] min_clearance_mm. A region whose
+  /// allowance_mm is smaller is refused (its last pass would grind nearer than the cell can
+  /// place the surface).
+  double min_clearance_mm = 0.05;
   double air_speed_mm_s = 100.0;    ///< approach / air / retract (clamped to max_speed_mm_s)
   double lead_mm = 5.0;             ///< lead-in / lead-out length of flash loops and passes
   double max_backoff_mm = 10.0;     ///< how far a pose may back off to avoid a gouge
@@ -96,9 +101,12 @@ struct RegionPlan {
   double max_excess_mm = 0.0;     ///< riser/straight: D, largest height above the template
   std::vector<double> layer_levels_mm;  ///< riser/straight: heights above the template per layer/pass
   /// riser: the highest excess material left under raster points the tool cannot reach (no
-  /// higher than PlannerSettings::leave_unreachable_mm; 0: none left)
+  /// higher than PlannerSettings::leave_unreachable_mm; 0: none left). straight flash: the
+  /// highest material beyond the ends of the passes, which stop where the tool would come nearer
+  /// a wall or another feature than the allowance (any height: it is left, never ground into).
   double left_mm = 0.0;
   Vec3 left_at = Vec3::Zero();    ///< ... where (part frame)
+  double left_length_mm = 0.0;    ///< straight flash: the length of the fin so left
 };
 
 // --- the pose equations (Zhu et al. 2022, Eqs. 17–21) ---------------------------------------
@@ -137,10 +145,12 @@ double air_move_length_mm(const std::vector<RegionPlan>& plans, const std::vecto
 Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& plans,
                     const std::vector<std::size_t>& order, const PlannerSettings& settings);
 
-/// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge" (at every point and along
-/// the move onto it, sampled every 1 mm: approach descents, lifts and leads included).
-/// The error names the region, the point index in the trajectory and the rule
-/// (code "planning.<rule>").
+/// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge": at every point and along
+/// the move onto it, sampled every 1 mm (approach descents, lifts, leads, lead-outs, the moves
+/// between passes and between regions), the tool's whole shape keeps at least
+/// settings.min_clearance_mm from the whole template, placed with the point's region's pose.
+/// The error names the region, the point index in the trajectory, the rule (code
+/// "planning.<rule>") and, for a gouge, the tool's deepest point (part frame) and its depth.
 Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs,
                 const PlannerSettings& settings);
 
