@@ -237,6 +237,78 @@ TEST_F(Pipeline, VerifySaysRegrindBeforeGrindingAndOkAfterAnExactGrind) {
   EXPECT_TRUE(after->regrind_regions().empty());
 }
 
+/// A straight pass of `tool` along x from x0 to x1 at (y, z) of the part frame (the tool tip;
+/// tool axis up), in the base frame of `casting`, named `region`.
+Trajectory pass_on(const sim::Casting& casting, const std::string& region, double x0, double x1, double y, double z) {
+  Trajectory t;
+  t.part_id = "pump-body";
+  t.segment_regions = {region};
+  for (double x = x0; x <= x1 + 1e-9; x += 0.5) {
+    TrajectoryPoint p;
+    p.T_base_tool = Pose::from_transform(casting.T_base_part() * Transform(Eigen::Translation3d(x, y, z)));
+    p.speed_mm_s = 20.0;
+    p.spindle_rpm = 9000.0;
+    t.points.push_back(p);
+  }
+  return t;
+}
+
+// The gouge of the unseen castings: the ball 0.6 mm into the base top at x = 40-48, y = -70,
+// outside every region's ROI (the straight flash's ends at x = 40: the ball's footprint spans
+// x 34-54), where the cell's verification looked nowhere. It is found where the tool went and
+// named; searched only in the ROIs (nothing ground) the same scan reads OK.
+TEST_F(Pipeline, VerifyFindsAGougeOutsideEveryRoiWhereTheToolWent) {
+  auto casting = sim::Casting::make(loaded_->recipe, 6);
+  casting.remove_all_material();
+  const std::string region = "side-parting-line";
+  const auto it = std::find_if(loaded_->recipe.regions.begin(), loaded_->recipe.regions.end(),
+                               [&](const config::Region& r) { return r.name == region; });
+  ASSERT_NE(it, loaded_->recipe.regions.end());
+  const auto pass = pass_on(casting, region, 44.0, 48.0, -70.0, 35.0 - 0.6);
+  sim::GrindOptions go;
+  go.tool = loaded_->tool_for(*it);
+  go.path_noise_mm = 0.0;
+  const auto ground = sim::grind(casting, pass, go);
+  ASSERT_TRUE(ground) << ground.error().message;
+  ASSERT_NEAR(ground->max_gouge_depth_mm(), 0.6, 0.05);
+  const sim::Scanner scanner(small_scanner());
+  const auto views = views_of(scanner.capture_all(casting));
+  const auto r = verify(*loaded_, cell_, views, {pass});
+  ASSERT_TRUE(r) << r.error().message;
+  EXPECT_EQ(r->verdict, Verdict::nok);
+  ASSERT_TRUE(r->worst_gouge.has_value()) << "the gouge was not found";
+  const auto& g = *r->worst_gouge;
+  EXPECT_FALSE(g.in_roi);
+  EXPECT_EQ(g.region, region);
+  EXPECT_NEAR(g.depth_mm, 0.6, 0.15);
+  EXPECT_NEAR(g.at_part.x(), 46.0, 4.0);
+  EXPECT_NEAR(g.at_part.y(), -70.0, 3.0);
+  EXPECT_NEAR(g.at_part.z(), 34.4, 0.3);
+  EXPECT_NE(g.describe().find("gouged outside region side-parting-line at ("), std::string::npos) << g.describe();
+  EXPECT_GT(r->footprint_points, 100U);
+  for (const auto& v : r->regions) EXPECT_EQ(v.verdict, Verdict::ok) << v.name << ": " << v.reason;
+  const auto roi_only = verify(*loaded_, cell_, views);
+  ASSERT_TRUE(roi_only) << roi_only.error().message;
+  EXPECT_FALSE(roi_only->worst_gouge.has_value());
+  EXPECT_EQ(roi_only->verdict, Verdict::ok);
+}
+
+// The cell's own plan of a casting, ground exactly (the material removed, nothing else): the
+// scan's noise and the casting's form deviation over the whole footprint of the plan are no gouge.
+TEST_F(Pipeline, VerifyFindsNoGougeWhereAnExactlyGroundCastingWasGround) {
+  auto casting = sim::Casting::make(loaded_->recipe, 7);
+  const sim::Scanner scanner(small_scanner());
+  const auto planned = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
+  ASSERT_TRUE(planned) << planned.error().message;
+  casting.remove_all_material();
+  const auto r = verify(*loaded_, cell_, views_of(scanner.capture_all(casting)), {planned->trajectory});
+  ASSERT_TRUE(r) << r.error().message;
+  EXPECT_GT(r->footprint_points, 1000U);
+  EXPECT_FALSE(r->worst_gouge.has_value()) << r->worst_gouge->describe();
+  EXPECT_LT(r->deepest_below_mm, loaded_->recipe.verification.gouge_depth_mm);
+  EXPECT_EQ(r->verdict, Verdict::ok);
+}
+
 // The verification drops the re-scan's flying pixels (verification.jump_edge_mm): on casting 5,
 // ground exactly, those beside the boss's wall (its rim 5-9 mm above the tilted face) read as
 // material 0.4-1.9 mm off the template and the boss REGRIND (2026-12-03: 44 of 50 castings of

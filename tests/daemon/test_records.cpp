@@ -100,10 +100,13 @@ TEST(Records, BeginWriteEndAndReadBack) {
     ASSERT_TRUE(c) << c.error().message;
     EXPECT_TRUE(fs::is_directory(c->dir));
     ASSERT_TRUE(Records::write_file(*c, "report.json", "{\"x\":1}"));
-    c->result = "OK";
+    c->result = "NOK";
     c->duration_s = 1.5;
+    c->worst_gouge_mm = 0.58;  // the verification's worst gouge: `fettle cycles` shows it
+    c->gouge = "gouged outside region side-parting-line at (46.10, -70.20, 34.40) mm (part frame), depth 0.580 mm";
     ASSERT_TRUE(r.end(*c, {{"steps", nlohmann::json::array()}}));
-    EXPECT_EQ(r.last()->result, "OK");
+    EXPECT_EQ(r.last()->result, "NOK");
+    ASSERT_TRUE(r.last()->worst_gouge_mm.has_value());
   }
   Records again(dir, keep(10, 100));
   auto interrupted = again.open();
@@ -111,9 +114,13 @@ TEST(Records, BeginWriteEndAndReadBack) {
   EXPECT_TRUE(interrupted->empty());
   ASSERT_EQ(again.count(), 1U);
   const auto c = again.cycles(5).front();
-  EXPECT_EQ(c.result, "OK");
+  EXPECT_EQ(c.result, "NOK");
   EXPECT_EQ(c.part_id, "pump-body");
   EXPECT_DOUBLE_EQ(c.duration_s, 1.5);
+  ASSERT_TRUE(c.worst_gouge_mm.has_value());
+  EXPECT_DOUBLE_EQ(*c.worst_gouge_mm, 0.58);
+  EXPECT_NE(c.gouge.find("gouged outside region side-parting-line"), std::string::npos) << c.gouge;
+  EXPECT_FALSE(CycleSummary::from_json(CycleSummary{}.to_json()).worst_gouge_mm.has_value());  // no verification
   std::ifstream in(c.dir / "report.json");
   std::string text((std::istreambuf_iterator<char>(in)), {});
   EXPECT_EQ(text, "{\"x\":1}");

@@ -3,12 +3,15 @@
 #include "fettle/daemon/pipeline.hpp"
 
 #include <algorithm>
+#include <array>
+#include <cstdint>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <limits>
 #include <sstream>
 #include <system_error>
+#include <unordered_map>
 
 #include "fettle/config/load.hpp"
 #include "fettle/config/roi.hpp"
@@ -323,9 +326,12 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     const double ms = ms_since(t0);
     if (!plan) return step_error("plan", plan.error());
     if (plan->left_mm > 0.0)
-      log::get("planning")->warn("region '{}': {:.2f} mm of excess material at ({:.2f}, {:.2f}, {:.2f}) (part frame) is left: "
-                                 "the tool cannot reach it without cutting the template",
-                                 in.region->name, plan->left_mm, plan->left_at.x(), plan->left_at.y(), plan->left_at.z());
+      log::get("planning")->warn("region '{}': {:.2f} mm of excess material at ({:.2f}, {:.2f}, {:.2f}) (part frame){} is "
+                                 "left: unreachable, the tool cannot reach it without coming nearer the template than "
+                                 "its allowance",
+                                 in.region->name, plan->left_mm, plan->left_at.x(), plan->left_at.y(), plan->left_at.z(),
+                                 plan->left_length_mm > 0.0 ? fmt::format(", {:.1f} mm of the fin", plan->left_length_mm)
+                                                            : std::string{});
     for (auto& m : out.regions)
       if (m.name == in.region->name) {
         m.plan_ms = ms;
@@ -333,6 +339,7 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
         m.segments = plan->segments;
         m.material_left_mm = plan->left_mm;
         m.material_left_at = plan->left_at;
+        m.material_left_length_mm = plan->left_length_mm;
       }
     plans.push_back(std::move(plan.value()));
   }
@@ -379,6 +386,58 @@ std::vector<std::string> VerificationResult::regrind_regions() const {
 
 namespace {
 
+/// Points of a cloud by 1-voxel cells, for the neighbours of a few candidates.
+class PointCells {
+ public:
+  PointCells(const std::vector<Eigen::Vector3f>& pts, double cell) : pts_(pts), cell_(cell) {
+    for (std::size_t i = 0; i < pts.size(); ++i) cells_[key(pts[i].cast<double>())].push_back(i);
+  }
+  template <class F>
+  void within(const Vec3& q, double r, F&& f) const {
+    const auto c = coords(q);
+    const int n = static_cast<int>(std::ceil(r / cell_));
+    for (int dz = -n; dz <= n; ++dz)
+      for (int dy = -n; dy <= n; ++dy)
+        for (int dx = -n; dx <= n; ++dx) {
+          const auto it = cells_.find(pack(c[0] + dx, c[1] + dy, c[2] + dz));
+          if (it == cells_.end()) continue;
+          for (auto i : it->second)
+            if ((pts_[i].cast<double>() - q).squaredNorm() <= r * r) f(i);
+        }
+  }
+
+ private:
+  [[nodiscard]] std::array<std::int64_t, 3> coords(const Vec3& p) const {
+    return {static_cast<std::int64_t>(std::floor(p.x() / cell_)), static_cast<std::int64_t>(std::floor(p.y() / cell_)),
+            static_cast<std::int64_t>(std::floor(p.z() / cell_))};
+  }
+  static std::int64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+    return ((x & 0x1FFFFF) << 42) | ((y & 0x1FFFFF) << 21) | (z & 0x1FFFFF);
+  }
+  [[nodiscard]] std::int64_t key(const Vec3& p) const {
+    const auto c = coords(p);
+    return pack(c[0], c[1], c[2]);
+  }
+  const std::vector<Eigen::Vector3f>& pts_;
+  double cell_;
+  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
+};
+
+
+/// The median signed distance of the points within `radius` of point k (k included): a gouge's
+/// depth as its neighbourhood confirms it. nullopt with fewer than 3 points there (an isolated
+/// point confirms nothing).
+std::optional<double> neighbourhood_median(const PointCells& cells, const std::vector<Eigen::Vector3f>& pts,
+                                           const std::vector<float>& residual, std::size_t k, double radius,
+                                           std::vector<float>& scratch) {
+  scratch.clear();
+  cells.within(pts[k].cast<double>(), radius, [&](std::size_t i) { scratch.push_back(residual[i]); });
+  if (scratch.size() < 3) return std::nullopt;
+  auto mid = scratch.begin() + static_cast<std::ptrdiff_t>(scratch.size() / 2);
+  std::nth_element(scratch.begin(), mid, scratch.end());
+  return static_cast<double>(*mid);
+}
+
 RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs,
                                 std::size_t min_points, std::vector<Eigen::Vector3f> points_part,
                                 std::vector<float> residual_mm) {
@@ -395,8 +454,18 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
     v.max_residual_mm = std::max(v.max_residual_mm, a);
     v.max_above_mm = std::max(v.max_above_mm, static_cast<double>(r));
     v.max_below_mm = std::max(v.max_below_mm, static_cast<double>(-r));
-    gouged += -r > vs.gouge_depth_mm ? 1 : 0;
     too_high += r > vs.max_regrind_height_mm ? 1 : 0;
+  }
+  // Gouged points: more than gouge_depth_mm below the template, and so is the median of their
+  // neighbourhood (a single deep point is noise or a mixed pixel at a wall, not a cut).
+  if (std::any_of(residual_mm.begin(), residual_mm.end(), [&](float r) { return -r > vs.gouge_depth_mm; })) {
+    const PointCells cells(points_part, std::max(0.25, vs.gouge_confirm_radius_mm));
+    std::vector<float> scratch;
+    for (std::size_t k = 0; k < residual_mm.size(); ++k) {
+      if (!(-residual_mm[k] > vs.gouge_depth_mm)) continue;
+      const auto m = neighbourhood_median(cells, points_part, residual_mm, k, vs.gouge_confirm_radius_mm, scratch);
+      gouged += m && -*m > vs.gouge_depth_mm ? 1 : 0;
+    }
   }
   const double n = static_cast<double>(std::max<std::size_t>(1, v.roi_points));
   auto pct = [&](std::size_t k) { return 100.0 * static_cast<double>(k) / n; };
@@ -419,7 +488,8 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
   } else if (pct(gouged) > vs.nok_max_share_gouged_pct) {
     v.verdict = Verdict::nok;
     v.reason = num(pct(gouged)) + " % of the ROI points are more than gouge_depth_mm = " + num(vs.gouge_depth_mm) +
-               " mm below the template (allowed " + num(vs.nok_max_share_gouged_pct) + " %): gouged";
+               " mm below the template with their neighbourhood (allowed " + num(vs.nok_max_share_gouged_pct) +
+               " %): gouged";
   } else if (pct(too_high) > vs.ok_max_share_over_0_5_pct) {
     v.verdict = Verdict::nok;
     v.reason = num(pct(too_high)) + " % of the ROI points stand more than max_regrind_height_mm = " +
@@ -436,13 +506,91 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
 
 }  // namespace
 
-Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig&, const std::vector<View>& rescan,
-                                  const Progress& progress) {
+namespace {
+
+std::string fmt_mm(double v, int precision) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.*f", precision, v);
+  return buf;
+}
+
+/// A tool's volume at one pose, for the swept footprint: a ball (centre, radius) or a cylinder
+/// (axis from `a` to `b`, radius), both grown by the margin.
+struct ToolVolume {
+  Vec3 a, b;
+  double radius = 0.0;
+  std::size_t region = 0;  ///< index into the recipe's regions
+  [[nodiscard]] bool contains(const Vec3& q) const {
+    const Vec3 ab = b - a;
+    const double len2 = ab.squaredNorm();
+    const double f = len2 > 0.0 ? std::clamp((q - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+    return (q - (a + f * ab)).squaredNorm() <= radius * radius;
+  }
+};
+
+/// Every pose of the trajectories and every 1 mm of the moves between them (validate()'s
+/// sampling), as tool volumes in the part frame.
+std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground,
+                                      const Transform& T_part_base) {
+  constexpr double kStepMm = 1.0;
   const auto& recipe = loaded.recipe;
+  std::vector<ToolVolume> out;
+  for (const auto& traj : ground) {
+    for (std::size_t i = 0; i < traj.points.size(); ++i) {
+      const std::string name = traj.region_of(traj.points[i]);
+      const auto it = std::find_if(recipe.regions.begin(), recipe.regions.end(),
+                                   [&](const config::Region& r) { return r.name == name; });
+      if (it == recipe.regions.end()) continue;
+      const auto& tool = loaded.tool_for(*it);
+      const double R = 0.5 * tool.diameter_mm;
+      const bool ball = tool.shape == config::ToolShape::ball;
+      const double grow = recipe.verification.footprint_margin_mm;
+      auto add = [&](const Pose& m) {
+        const Transform T = T_part_base * m.to_transform();
+        const Vec3 tip = T.translation(), z = T.linear().col(2);
+        ToolVolume v;
+        v.region = static_cast<std::size_t>(it - recipe.regions.begin());
+        v.a = ball ? Vec3(tip + R * z) : tip;
+        v.b = ball ? v.a : Vec3(tip + std::max(0.0, tool.length_mm) * z);
+        v.radius = R + grow;
+        out.push_back(v);
+      };
+      const Pose& b = traj.points[i].T_base_tool;
+      if (i > 0) {
+        const Pose& a = traj.points[i - 1].T_base_tool;
+        const int steps = static_cast<int>(std::ceil((b.position_mm - a.position_mm).norm() / kStepMm));
+        for (int k = 1; k < steps; ++k) {
+          const double f = static_cast<double>(k) / steps;
+          add(Pose{a.position_mm + f * (b.position_mm - a.position_mm), a.orientation.slerp(f, b.orientation).normalized()});
+        }
+      }
+      add(b);
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string GougeFinding::describe() const {
+  return std::string("gouged ") + (in_roi ? "in" : "outside") + " region " + region + " at (" + fmt_mm(at_part.x(), 2) +
+         ", " + fmt_mm(at_part.y(), 2) + ", " + fmt_mm(at_part.z(), 2) + ") mm (part frame), depth " +
+         fmt_mm(depth_mm, 3) + " mm";
+}
+
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig& cell, const std::vector<View>& rescan,
+                                  const Progress& progress) {
+  return verify(loaded, cell, rescan, {}, progress);
+}
+
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig&, const std::vector<View>& rescan,
+                                  const std::vector<Trajectory>& ground, const Progress& progress) {
+  const auto& recipe = loaded.recipe;
+  const auto& vs = recipe.verification;
   VerificationResult out;
   const std::size_t total = 3;
   // the re-scan without flying pixels: beside a wall they stand in the air and read as material
-  auto ins = locate(loaded, rescan, recipe.verification.jump_edge_mm, out.timings, progress, total);
+  auto ins = locate(loaded, rescan, vs.jump_edge_mm, out.timings, progress, total);
   if (!ins) return ins.error();
   const auto t0 = Clock::now();
   report(progress, 2, total, "verify");
@@ -470,10 +618,80 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
                                        static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
                                        std::move(residual)));
   }
+
+  // Gouges wherever the tool went: the whole part's re-scan (part frame, the whole part's pose)
+  // in every ROI and in the swept footprint of every uploaded pose and move. A place counts
+  // when the median of the points within gouge_confirm_radius_mm lies more than gouge_depth_mm
+  // below the template (tests Verify.AGougeOutsideEveryRoiIsFoundAndNamed,
+  // Verify.ScanNoiseAloneIsNoGouge).
+  {
+    const auto& scene = ins->scene_part.points;
+    const auto volumes = swept_volumes(loaded, ground, out.T_base_part.inverse());
+    Vec3 vlo = Vec3::Constant(std::numeric_limits<double>::infinity()), vhi = -vlo;
+    for (const auto& v : volumes) {
+      vlo = vlo.cwiseMin(v.a.cwiseMin(v.b) - Vec3::Constant(v.radius));
+      vhi = vhi.cwiseMax(v.a.cwiseMax(v.b) + Vec3::Constant(v.radius));
+    }
+    std::vector<float> residual(scene.size());
+    for (std::size_t k = 0; k < scene.size(); ++k)
+      residual[k] = static_cast<float>(loaded.template_sdf(scene[k].cast<double>()));
+    // where a point is: the ROI holding it, else the footprint of a region's tool, else nowhere
+    auto place = [&](const Vec3& q, std::string& region, bool& in_roi) {
+      for (const auto& r : recipe.regions)
+        if (config::roi_contains(r, q.cast<float>())) {
+          region = r.name, in_roi = true;
+          return true;
+        }
+      if ((q.array() < vlo.array()).any() || (q.array() > vhi.array()).any()) return false;
+      for (const auto& v : volumes)
+        if (v.contains(q)) {
+          region = recipe.regions[v.region].name, in_roi = false;
+          return true;
+        }
+      return false;
+    };
+    for (std::size_t k = 0; k < scene.size(); ++k) {
+      const Vec3 q = scene[k].cast<double>();
+      bool in_any_roi = false;
+      for (const auto& r : recipe.regions) in_any_roi = in_any_roi || config::roi_contains(r, scene[k]);
+      if (in_any_roi || (q.array() < vlo.array()).any() || (q.array() > vhi.array()).any()) continue;
+      for (const auto& v : volumes)
+        if (v.contains(q)) {
+          ++out.footprint_points;
+          break;
+        }
+    }
+    // candidates from half the gouge depth: the deepest confirmed place is reported even when it
+    // is no gouge
+    std::vector<std::size_t> candidates;
+    for (std::size_t k = 0; k < scene.size(); ++k)
+      if (-residual[k] > 0.5 * vs.gouge_depth_mm) candidates.push_back(k);
+    if (!candidates.empty()) {
+      const PointCells cells(scene, std::max(0.25, vs.gouge_confirm_radius_mm));
+      std::vector<float> near;
+      for (auto k : candidates) {
+        const Vec3 q = scene[k].cast<double>();
+        GougeFinding g;
+        if (!place(q, g.region, g.in_roi)) continue;
+        const auto median = neighbourhood_median(cells, scene, residual, k, vs.gouge_confirm_radius_mm, near);
+        if (!median) continue;
+        const double depth = -*median;
+        out.deepest_below_mm = std::max(out.deepest_below_mm, depth);
+        if (depth <= vs.gouge_depth_mm) continue;
+        if (out.worst_gouge && out.worst_gouge->depth_mm >= depth) continue;
+        g.depth_mm = depth;
+        g.at_part = q;
+        g.points = near.size();  // the neighbourhood's points
+        out.worst_gouge = g;
+      }
+    }
+  }
+
   for (const auto& r : out.regions) {
     if (r.verdict == Verdict::nok) out.verdict = Verdict::nok;
     else if (r.verdict == Verdict::regrind && out.verdict == Verdict::ok) out.verdict = Verdict::regrind;
   }
+  if (out.worst_gouge) out.verdict = Verdict::nok;
   out.timings.push_back({"verify", ms_since(t0)});
   report(progress, total, total, "done");
   return out;

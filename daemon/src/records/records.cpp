@@ -40,6 +40,8 @@ json CycleSummary::to_json() const {
          {"recipe_id", recipe_id}, {"part_id", part_id}, {"dry", dry},     {"duration_s", duration_s},
          {"fault_code", fault_code}, {"fault", fault},  {"dir", dir.string()}};
   if (record_deleted) j["record_deleted"] = true;
+  if (worst_gouge_mm) j["worst_gouge_mm"] = *worst_gouge_mm;
+  if (!gouge.empty()) j["gouge"] = gouge;
   return j;
 }
 
@@ -57,6 +59,8 @@ CycleSummary CycleSummary::from_json(const json& j) {
   s.fault = j.value("fault", "");
   s.dir = j.value("dir", "");
   s.record_deleted = j.value("record_deleted", false);
+  if (j.contains("worst_gouge_mm") && j["worst_gouge_mm"].is_number()) s.worst_gouge_mm = j["worst_gouge_mm"].get<double>();
+  s.gouge = j.value("gouge", "");
   return s;
 }
 

@@ -784,13 +784,17 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     publish_state();
     auto recipe = c.recipe;
     auto views_copy = std::make_shared<const std::vector<View>>(views);
+    // what the robot ran in this cycle: the verification looks for gouges wherever it went
+    auto ground = std::make_shared<std::vector<Trajectory>>();
+    if (c.processed) ground->push_back(c.processed->trajectory);
+    for (const auto& r : c.regrinds) ground->push_back(r.trajectory);
     // named, not a temporary in the co_await expression (see process_views)
     const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
-        [this, recipe, views_copy](std::function<void(Result<VerificationResult>)> done) {
-          asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, done] {
+        [this, recipe, views_copy, ground](std::function<void(Result<VerificationResult>)> done) {
+          asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, done] {
             Result<VerificationResult> out = Error{"pipeline.internal", "not run"};
             try {
-              out = verify(*recipe, cell, *views_copy);
+              out = verify(*recipe, cell, *views_copy, *ground);
             } catch (const std::exception& e) {
               out = Error{"pipeline.internal", e.what()};
             }
@@ -955,6 +959,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       if (r.verdict == Verdict::ok) log->info("{}", line);
       else log->warn("{}", line);
     }
+    if (v.worst_gouge) log->warn("cycle {}: {}: NOK: {}", c.summary.id, what, v.worst_gouge->describe());
   }
 
   /// The files a cycle's processing made for its record (trajectory, preview, fused cloud),
@@ -1022,7 +1027,20 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       if (write_scalar_ply(c.summary.dir / name, r.roi_points_part, r.residual_mm, "deviation_mm"))
         c.files.push_back(name);
     }
-    return {{"verdict", to_string(v.verdict)}, {"regions", regions}, {"timings", timings_json(v.timings)}};
+    json gouge = nullptr;
+    if (v.worst_gouge)
+      gouge = {{"depth_mm", v.worst_gouge->depth_mm},
+               {"at_part_mm", {v.worst_gouge->at_part.x(), v.worst_gouge->at_part.y(), v.worst_gouge->at_part.z()}},
+               {"region", v.worst_gouge->region},
+               {"in_roi", v.worst_gouge->in_roi},
+               {"points", v.worst_gouge->points},
+               {"reason", v.worst_gouge->describe()}};
+    return {{"verdict", to_string(v.verdict)},
+            {"regions", regions},
+            {"worst_gouge", gouge},
+            {"deepest_below_template_mm", v.deepest_below_mm},
+            {"footprint_points", v.footprint_points},
+            {"timings", timings_json(v.timings)}};
   }
 
   json process_json(const ProcessOutput& p) {
@@ -1037,7 +1055,12 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
                          {"excess_max_height_mm", r.excess_max_height_mm},
                          {"trajectory_points", r.trajectory_points},
                          {"segments", r.segments},
-                         {"plan_ms", r.plan_ms}});
+                         {"plan_ms", r.plan_ms},
+                         // left: unreachable (the tool cannot get there without coming nearer
+                         // the template than its allowance): its height, where, the fin's length
+                         {"material_left_mm", r.material_left_mm},
+                         {"material_left_at_mm", {r.material_left_at.x(), r.material_left_at.y(), r.material_left_at.z()}},
+                         {"material_left_length_mm", r.material_left_length_mm}});
     const auto& t = p.T_base_part.translation();
     return {{"regions", regions},
             {"trajectory_points", p.trajectory.points.size()},
@@ -1057,6 +1080,13 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       s.fault = c.fault->describe();
     } else {
       s.result = c.result.empty() ? "NOK" : c.result;
+    }
+    if (c.verification) {
+      // `fettle cycles` shows it as a column: the deepest confirmed place below the template
+      // wherever the tool went, a gouge when over gouge_depth_mm (then `gouge` says where)
+      const auto& g = c.verification->worst_gouge;
+      s.worst_gouge_mm = g ? g->depth_mm : c.verification->deepest_below_mm;
+      if (g) s.gouge = g->describe();
     }
     json report{{"cycle", s.to_json()},
                 {"result", s.result},

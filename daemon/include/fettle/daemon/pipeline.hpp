@@ -134,6 +134,7 @@ struct RegionMetrics {
   /// height in mm (0: none) and where (part frame).
   double material_left_mm = 0.0;
   Vec3 material_left_at = Vec3::Zero();
+  double material_left_length_mm = 0.0;  ///< straight flash: the length of fin so left (RegionPlan)
 };
 
 struct ProcessOptions {
@@ -188,17 +189,44 @@ struct RegionVerification {
   std::vector<float> residual_mm;               ///< their signed distances (> 0 = above)
 };
 
+/// The deepest place the re-scan shows below the template wherever the tool went (every ROI and
+/// the swept footprint of every uploaded pose and move), confirmed by its neighbours.
+struct GougeFinding {
+  double depth_mm = 0.0;          ///< below the template (median of the confirming points, > 0)
+  Vec3 at_part = Vec3::Zero();    ///< where (part frame, mm)
+  std::string region;             ///< the region whose ROI holds it, else whose tool went there
+  bool in_roi = false;            ///< inside that region's ROI
+  std::size_t points = 0;         ///< re-scan points that confirm it
+  /// "gouged in region <name> at (x, y, z) mm (part frame), depth d mm" or "gouged outside
+  /// region <name> at ..." (outside every ROI, in the footprint of <name>'s tool).
+  [[nodiscard]] std::string describe() const;
+};
+
 struct VerificationResult {
   Transform T_base_part = Transform::Identity();  ///< where the re-scan found the part
   std::vector<RegionVerification> regions;
-  Verdict verdict = Verdict::ok;      ///< NOK if any region is NOK, else REGRIND if any is, else OK
+  Verdict verdict = Verdict::ok;      ///< NOK if any region is NOK or a gouge deeper than
+                                      ///< gouge_depth_mm is found; else REGRIND if any is; else OK
+  /// The deepest confirmed place below the template (none: no point of the searched area is
+  /// more than gouge_depth_mm below it, or none is confirmed by its neighbours).
+  std::optional<GougeFinding> worst_gouge;
+  /// The deepest confirmed place below the template in the searched area, gouge or not (0 when
+  /// none is more than half of gouge_depth_mm below it).
+  double deepest_below_mm = 0.0;
+  std::size_t footprint_points = 0;   ///< re-scan points in the swept footprint outside every ROI
   std::vector<StepTiming> timings;
   /// Names of the regions whose verdict is REGRIND (for process() with ProcessOptions).
   [[nodiscard]] std::vector<std::string> regrind_regions() const;
 };
 
 /// Compares the re-scan of each region with the template (thresholds from the recipe's
-/// [verification] table). Never throws on bad scans.
+/// [verification] table), and looks for gouges in every ROI and in the swept footprint of
+/// every pose of `ground` (the trajectories uploaded in this cycle, base frame): a place more
+/// than gouge_depth_mm below the template there makes the verdict NOK. Never throws on bad scans.
+Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
+                                  const std::vector<View>& rescan, const std::vector<Trajectory>& ground,
+                                  const Progress& progress = {});
+/// As above with nothing ground (only the ROIs are searched for gouges).
 Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
                                   const std::vector<View>& rescan, const Progress& progress = {});
 

@@ -46,6 +46,10 @@ struct CycleSummary {
   std::string fault;         ///< Fault::describe()
   std::filesystem::path dir; ///< the cycle's record directory
   bool record_deleted = false;  ///< removed by retention
+  /// The verification's deepest confirmed place below the template wherever the tool went (mm;
+  /// none for a cycle without a verification scan); `gouge` says where when it is a gouge.
+  std::optional<double> worst_gouge_mm;
+  std::string gouge;
 
   [[nodiscard]] nlohmann::json to_json() const;
   static CycleSummary from_json(const nlohmann::json& j);
