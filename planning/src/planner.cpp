@@ -19,11 +19,14 @@ constexpr double kSweepStepMm = 1.0;  ///< validation samples moves between poin
 constexpr double kBackoffTolMm = 0.002;  ///< a back-off leaves at most this much more than needed
 constexpr double kProbeNearMm = 2.0;     ///< tool_penetration_mm: probes are exact at least this near
 /// validate(): a pose nearer the template than the clearance by more than this is a gouge. The
-/// planner's back-offs land within kBackoffTolMm of the clearance, but two nearly equal poses
-/// can read up to about 0.005 mm apart: a flat end face on a flat face has many equally deep
-/// samples, the search around the deepest one starts from whichever rounding makes first, and
-/// the signed-distance grid's interpolation beside an edge is uneven at that scale.
-constexpr double kValidateTolMm = 0.01;
+/// planner checks every pose and move sample as validation does and backs off to within
+/// kBackoffTolMm of the clearance; the same pose in the base frame differs only by rounding.
+constexpr double kValidateTolMm = 0.005;
+/// tool_penetration_mm: samples deeper by less than this are ties, and the first one wins. A flat
+/// end face over a flat face has many equally deep samples; were rounding to pick among them,
+/// the same pose in the part and the base frame would be searched around different samples and
+/// read differently beside an edge, where the signed-distance grid is uneven.
+constexpr double kTieMm = 1e-9;
 /// tool_penetration_mm: a cylinder's samples this near the decision are searched around.
 constexpr double kRefineMarginMm = 0.5;
 
@@ -149,7 +152,10 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
 template <class Fn>
 bool for_each_move_sample(const Pose& a, const Pose& b, Fn&& fn) {
   const double len = (b.position_mm - a.position_mm).norm();
-  const int steps = static_cast<int>(std::ceil(len / kSweepStepMm));
+  // a move of one step (a raster's point spacing) has no sample between its ends in either
+  // frame: the located part's rotation, from single-precision registration, stretches lengths
+  // by up to a few 1e-8 from the part frame to the base frame
+  const int steps = static_cast<int>(std::ceil(len / kSweepStepMm - 1e-6));
   for (int k = 1; k < steps; ++k) {
     const double f = static_cast<double>(k) / steps;
     const Pose m{a.position_mm + f * (b.position_mm - a.position_mm), a.orientation.slerp(f, b.orientation).normalized()};
@@ -759,7 +765,7 @@ double tool_penetration_mm(const config::Tool& tool, const Transform& T_part_too
   auto probe = [&](double t, double a) {
     const Vec3 p = surface(t, a);
     const double pen = -sdf.near(p, near_mm);
-    if (pen > worst) {
+    if (pen > worst + kTieMm) {
       worst = pen, wt = t, wa = a;
       if (deepest != nullptr) *deepest = p;
     }
