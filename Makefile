@@ -97,10 +97,13 @@ bench: build
 # random:50: 50 consecutive seeds from a start above 1000, printed first so the run can be
 # repeated with ACCURACY_SEEDS=A-B); it fails on any gouge deeper than 0.10 mm anywhere on the
 # part. Results in $(BUILD_DIR)/accuracy/.
+# The run's summary.md goes into docs/results.md, pass or fail.
 ACCURACY_SEEDS ?= random:50
 accuracy: build
+	rm -f $(BUILD_DIR)/accuracy/summary.md
 	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \
-	  --seeds $(ACCURACY_SEEDS) --out $(BUILD_DIR)/accuracy
+	  --seeds $(ACCURACY_SEEDS) --out $(BUILD_DIR)/accuracy; status=$$?; \
+	  scripts/update-results accuracy $(BUILD_DIR)/accuracy/summary.md && exit $$status
 
 # The vision accuracy test of issue 4 on 50 simulated castings (ctest runs it too).
 accuracy-vision: build

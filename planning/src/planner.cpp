@@ -167,12 +167,20 @@ bool for_each_move_sample(const Pose& a, const Pose& b, Fn&& fn) {
 /// Validation also samples the moves between points (for_each_move_sample). Where the sampled
 /// template dips between two clear points, a move can still cut a little: push both ends of
 /// such a move out along their retreat directions until every sample of it keeps
-/// `clearance_mm` too. False when max_mm is not enough.
+/// `clearance_mm` too, and every pose so pushed still keeps it itself (beside an edge the
+/// sampled template is uneven, and a pose pushed up can read nearer than where it was). False
+/// when max_mm is not enough.
 bool clear_moves(const config::Tool& tool, std::vector<Transform>& poses, const std::vector<Vec3>& retreats,
                  const SignedDistance& sdf, double clearance_mm, double max_mm) {
   std::vector<double> pushed(poses.size(), 0.0);
   for (int round = 0; round < 25; ++round) {
     bool moved = false;
+    for (std::size_t i = 0; i < poses.size(); ++i) {
+      if (pushed[i] <= 0.0) continue;  // as placed (backed off by the caller)
+      const Vec3 at = poses[i].translation();
+      if (!back_off(tool, poses[i], sdf, retreats[i], clearance_mm, max_mm - pushed[i])) return false;
+      if (const double d = (poses[i].translation() - at).norm(); d > 0.0) pushed[i] += d, moved = true;
+    }
     for (std::size_t i = 1; i < poses.size(); ++i) {
       double worst = -std::numeric_limits<double>::infinity();
       for_each_move_sample(Pose::from_transform(poses[i - 1]), Pose::from_transform(poses[i]), [&](const Pose& m) {
@@ -551,7 +559,17 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
   const auto& pts = in.excess_points_part;
   RansacOptions opts = settings.ransac;
   opts.inlier_mm = std::max(opts.inlier_mm, settings.flash_band_mm);
-  auto line = fit_line_ransac(pts, opts);
+  // The line is the fin's: fitted to the points standing at least half as high as the highest.
+  // Lower excess beside it (a face standing proud of the template by the casting's form
+  // deviation, 0.2 mm over a broad patch) is no fin, and drew a line 5 degrees across the fin
+  // on an unseen casting (test StraightPlan.ALowPatchBesideTheFinDoesNotTiltTheLine).
+  double top = -std::numeric_limits<double>::infinity();
+  std::vector<double> h_all(pts.size());
+  for (std::size_t k = 0; k < pts.size(); ++k) top = std::max(top, h_all[k] = in.template_sdf(pts[k]));
+  std::vector<Vec3> crest;
+  for (std::size_t k = 0; k < pts.size(); ++k)
+    if (h_all[k] >= 0.5 * top) crest.push_back(pts[k]);
+  auto line = fit_line_ransac(crest.size() >= 2 ? crest : pts, opts);
   if (!line) return region_error(region.name, "fit", "no line could be fitted to the flash points");
   plan.line = *line;
   const auto frame = layer_frame(in, line->point);

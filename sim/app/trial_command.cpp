@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <map>
 #include <memory>
 #include <random>
@@ -177,6 +178,86 @@ std::string table(const std::string& title, const std::map<std::string, TypeStat
   return s.str();
 }
 
+/// What summary.md reports of a run.
+struct RunFacts {
+  std::uint64_t first = 0, last = 0;
+  std::string seeds_arg;
+  bool drawn = false, biased = false;
+  fettle::Vec3 path_bias = fettle::Vec3::Zero();
+  std::size_t count = 0, failures = 0;
+  double minutes = 0.0;
+  int width = 0, height = 0;
+  std::vector<double> seed_gouges;
+  double max_gouge = 0.0;
+  std::string worst_where;
+  std::vector<double> plan_ms;  ///< sorted
+  std::map<std::string, std::size_t> verdicts;
+  std::size_t gouged = 0, missed = 0;
+  double gouge_depth_mm = 0.0;
+  bool pass = false;
+};
+
+std::string utc_now() {
+  const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M UTC", &tm);
+  return buf;
+}
+
+/// The run as a Markdown section: `make accuracy` puts it into docs/results.md
+/// (scripts/update-results), so the latest figures there are the ones a command measured.
+std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>& t1,
+                             const std::map<std::string, double>& type_gouge) {
+  std::ostringstream m;
+  char buf[512];
+  const std::string seeds = std::to_string(f.first) + "-" + std::to_string(f.last);
+  m << "## Closed-loop accuracy: `make accuracy` (`fettle-sim trial`)\n\n";
+  std::snprintf(buf, sizeof buf, "%s, %zu castings, seeds %s (%s; repeat with `make accuracy ACCURACY_SEEDS=%s`), "
+                "%d x %d views, %.1f min%s. Acceptance: **%s**.\n\n",
+                utc_now().c_str(), f.count, seeds.c_str(),
+                f.drawn ? ("drawn at run time for `--seeds " + f.seeds_arg + "`").c_str() : "chosen by hand",
+                seeds.c_str(), f.width, f.height, f.minutes,
+                f.biased ? (", the executed path offset by (" + std::to_string(f.path_bias.x()) + ", " +
+                            std::to_string(f.path_bias.y()) + ", " + std::to_string(f.path_bias.z()) + ") mm")
+                               .c_str()
+                         : "",
+                f.pass ? "PASS" : "FAIL");
+  m << buf;
+  std::vector<double> g = f.seed_gouges;
+  std::sort(g.begin(), g.end());
+  const std::size_t over = static_cast<std::size_t>(std::count_if(g.begin(), g.end(), [](double d) { return d > kMaxGougeMm; }));
+  m << "| measure | value |\n| --- | --- |\n";
+  std::snprintf(buf, sizeof buf, "| castings planned and ground | %zu of %zu |\n", f.count - f.failures, f.count);
+  m << buf;
+  std::snprintf(buf, sizeof buf,
+                "| deepest gouge per casting (the simulator's account, whole part) | median %.3f mm, worst %.3f mm%s |\n",
+                g.empty() ? 0.0 : g[g.size() / 2], f.max_gouge,
+                f.worst_where.empty() ? "" : (" (" + f.worst_where + ")").c_str());
+  m << buf;
+  std::snprintf(buf, sizeof buf, "| castings gouged deeper than %.2f mm | %zu |\n", kMaxGougeMm, over);
+  m << buf;
+  std::string v;
+  for (const auto& [k, n] : f.verdicts) v += (v.empty() ? "" : ", ") + std::to_string(n) + " " + k;
+  std::snprintf(buf, sizeof buf,
+                "| the cell's verification | %s; %zu of %zu castings gouged deeper than gouge_depth_mm = %.2f mm read NOK |\n",
+                v.c_str(), f.gouged - f.missed, f.gouged, f.gouge_depth_mm);
+  m << buf;
+  std::snprintf(buf, sizeof buf, "| planning per casting | median %.1f ms, worst %.1f ms |\n\n",
+                f.plan_ms.empty() ? 0.0 : f.plan_ms[f.plan_ms.size() / 2], f.plan_ms.empty() ? 0.0 : f.plan_ms.back());
+  m << buf;
+  m << "| region type | castings | mean > 0.3 mm | worst casting > 0.3 mm | worst casting > 0.5 mm | deepest gouge |\n"
+       "| --- | --- | --- | --- | --- | --- |\n";
+  for (const auto& [type, t] : t1) {
+    const auto it = type_gouge.find(type);
+    std::snprintf(buf, sizeof buf, "| %s | %zu | %.3f %% | %.3f %% | %.3f %% | %.3f mm |\n", type.c_str(), t.seeds,
+                  pct(t.over_0_3, t.roi_points), t.worst_03_pct, t.worst_05_pct, it == type_gouge.end() ? 0.0 : it->second);
+    m << buf;
+  }
+  return m.str();
+}
+
 void save_points(const fs::path& file, const std::vector<Eigen::Vector3f>& pts, const fettle::Transform& T) {
   fettle::vision::Cloud c;
   c.points.reserve(pts.size());
@@ -221,6 +302,10 @@ int trial(const Args& a) {
   std::map<std::string, TypeStats> t1, t2;  // template comparison, batch consistency
   std::optional<Casting> reference;         // the first ground casting (batch consistency)
   std::size_t failures = 0, done = 0, gouged_seeds = 0, missed_gouges = 0;
+  std::vector<double> seed_gouges;             // the deepest gouge of each ground casting
+  std::string worst_where;                     // where the deepest of all was
+  std::map<std::string, std::size_t> verdicts;  // the cell's verification per casting
+  std::map<std::string, double> type_gouge;    // the deepest gouge per region type
   double max_gouge = 0.0;
   std::vector<double> plan_ms;
   json seeds_json = json::array();
@@ -332,6 +417,14 @@ int trial(const Args& a) {
           deepest = &g;
         }
       seed_gouge = std::max(seed_gouge, gmax);
+      type_gouge[type] = std::max(type_gouge[type], gmax);
+      if (gmax > max_gouge && gmax >= seed_gouge && deepest != nullptr) {
+        char w[160];
+        std::snprintf(w, sizeof w, "seed %llu, %s at (%.1f, %.1f, %.1f) mm (part frame)",
+                      static_cast<unsigned long long>(seed), region.name.c_str(), deepest->position_mm.x(),
+                      deepest->position_mm.y(), deepest->position_mm.z());
+        worst_where = w;
+      }
       seed_ok = seed_ok && pct(e1.over_0_5, e1.roi_points) <= kMaxShareOver05Pct &&
                 pct(e1.over_0_3, e1.roi_points) <= kMaxShareOver03Pct;
       json rj;
@@ -409,6 +502,8 @@ int trial(const Args& a) {
       save_points(dir / ("roi_" + region.name + ".ply"), roi, casting.T_base_part());
     }
     max_gouge = std::max(max_gouge, seed_gouge);
+    seed_gouges.push_back(seed_gouge);
+    ++verdicts[ver ? fettle::daemon::to_string(ver->verdict) : "error"];
     // A casting the simulator says is gouged deeper than the verification's gouge_depth_mm must
     // be NOK in the cell's own verification: an OK there would ship a scrapped casting.
     const bool gouged = seed_gouge > recipe.verification.gouge_depth_mm;
@@ -489,6 +584,13 @@ int trial(const Args& a) {
   summary["seed_results"] = seeds_json;
   (void)fettle::write_file_atomic(a.out / "summary.json", summary.dump(2) + "\n");
   (void)fettle::write_file_atomic(a.out / "summary.txt", report);
+  (void)fettle::write_file_atomic(a.out / "summary.md",
+                                  summary_markdown({first, last, a.seeds, drawn, biased, path_bias, count, failures,
+                                                    app::seconds_since(t0) / 60.0, scanner.config().intrinsics.width,
+                                                    scanner.config().intrinsics.height, seed_gouges, max_gouge,
+                                                    worst_where, plan_ms, verdicts, gouged_seeds, missed_gouges,
+                                                    recipe.verification.gouge_depth_mm, pass},
+                                                   t1, type_gouge));
   return pass ? fettle::exit_code::ok : fettle::exit_code::failure;
 }
 

@@ -336,6 +336,25 @@ TEST(StraightPlan, StrayExcessPointsAlongTheLineDoNotStretchThePasses) {
   EXPECT_EQ(both->left_length_mm, 0.0);
 }
 
+// A broad patch of the face 0.2 mm proud of the template beside the fin's end (the casting's
+// form deviation where the whole part's fit leaves it: an unseen casting's excess points held one
+// of 180 points at x 2..21, y -80..-70): it is no fin, and the line stays on the fin (it was
+// drawn 5 degrees across it, and the passes left the fin 0.5-0.9 mm high over 10 mm).
+TEST(StraightPlan, ALowPatchBesideTheFinDoesNotTiltTheLine) {
+  auto scene = make_scene();
+  auto& in = scene.inputs[3];
+  in.excess_points_part = testing::straight_fin(-95.0, -35.0, -70.0, 35.0, 1.5, 1.0, 0.5);
+  for (double x = 2.0; x <= 21.0; x += 1.0)
+    for (double y = -80.0; y <= -70.0; y += 1.0) in.excess_points_part.emplace_back(x, y, 35.2);
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  EXPECT_GT(std::abs(plan->line.direction.x()), 0.9999) << plan->line.direction.transpose();
+  for (const auto& p : plan->points)
+    if (p.kind == MoveKind::grind && p.T_base_tool.position_mm.x() < -30.0) {
+      EXPECT_NEAR(p.T_base_tool.position_mm.y(), -70.0, 0.2) << p.T_base_tool.position_mm.transpose();
+    }
+}
+
 // A fin that runs up to a wall (the boss block's at x = 62, outside the region's ROI): the
 // passes end where the ball keeps the allowance from the wall, never ramping up it, and the
 // fin the ball cannot reach there is left and reported with its length and height. On the
