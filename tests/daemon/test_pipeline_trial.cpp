@@ -137,9 +137,10 @@ TEST(Trial, TwoSeedsMeetTheAcceptanceThresholds) {
 
 // The executed path 0.4 mm below the commanded one (a calibration error in z): the tool cuts
 // into every face it grinds, and the cell's own verification must say NOK, with the gouge's
-// place, on every casting the simulator says is gouged deeper than gouge_depth_mm.
+// place, on every casting the simulator says is gouged deeper than gouge_depth_mm. At the
+// demo's 1032 x 772 (a quarter of the time; the gouges are millimetres wide).
 TEST(Trial, APathBiasGougeIsNokInTheCellsVerificationWithItsPlace) {
-  const auto t = run_trial("3-3", "--path-bias-mm 0 0 -0.4");
+  const auto t = run_trial("3-3", "--path-bias-mm 0 0 -0.4 --width 1032");
   ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
   EXPECT_EQ(t.summary.at("failures").get<int>(), 0) << t.log;
   EXPECT_GT(t.summary.at("max_gouge_depth_mm").get<double>(), 0.3) << t.log;  // gouged on purpose
