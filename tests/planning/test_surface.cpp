@@ -67,6 +67,23 @@ TEST(SampledSdf, EdgesAreNeitherFalseGougesNorFalseContacts) {
   }
 }
 
+// Just past a wall's top edge and above the top (a flat tool's rim over the riser pad's edge):
+// the wall's top sample is nearest, the point is off its sampled patch, and the wall's plane
+// alone said 0.03 mm for a point 0.25 mm above the top; lifting the tool never changed that, and
+// an unseen casting's riser was refused. Outside a convex edge both planes bound the distance.
+TEST(SampledSdf, DiagonallyOffAConvexEdgeTheDistanceIsNotTheWallsAlone) {
+  for (const bool wall_top_sample : {false, true}) {
+    std::vector<Vec3> pts, nrm;
+    sample_step(pts, nrm, wall_top_sample);
+    const auto sdf = sdf_from_samples(pts, nrm);
+    for (const Vec3& p : {Vec3(0.03, 0.1, 10.25), Vec3(0.1, 2.3, 10.5), Vec3(0.02, -4.0, 10.4)}) {
+      const double truth = std::hypot(p.x(), p.z() - 10.0);
+      EXPECT_GE(sdf(p), truth - 0.06) << p.transpose() << " " << wall_top_sample;
+      EXPECT_LE(sdf(p), truth + 0.05) << p.transpose() << " " << wall_top_sample;
+    }
+  }
+}
+
 // A sampled edge is rarely exact: the top face's last sample can sit a few hundredths of a
 // millimetre beside the wall's plane (the simulator's golden drew the boss wall as a staircase
 // until 1f52896). Judged from the wall's side alone that convex edge looked concave, the top's

@@ -152,7 +152,7 @@ planning::SignedDistance signed_distance_grid(const config::PartRecipe& recipe, 
   for (const auto& p : pts) lo = lo.cwiseMin(p), hi = hi.cwiseMax(p);
   std::ostringstream params;
   params.precision(17);
-  params << "sdf_from_samples 2 cell " << kCellMm << " search " << search_mm << " grid voxel " << gs.voxel_mm << " band "
+  params << "sdf_from_samples 4 cell " << kCellMm << " search " << search_mm << " grid voxel " << gs.voxel_mm << " band "
          << gs.band_mm << " tol " << gs.exact_tol_mm << " far " << gs.far_voxel_mm << " " << gs.far_band_mm << " "
          << gs.far_tol_mm << " jump " << gs.kink_jump_mm;
   const auto key = planning::sdf_grid_key(pts, nrm, params.str());
