@@ -524,9 +524,11 @@ int trial(const Args& a) {
     seeds_json.push_back(sj);
     std::string vnote;
     if (ver && ver->worst_gouge) vnote = " (" + ver->worst_gouge->describe() + ")";
-    if (missed) vnote += " GOUGE MISSED BY THE VERIFICATION";
     std::fprintf(stderr, ": %s, verdict %s%s, plan %.1f ms, max gouge %.3f mm (%.1f s)%s\n",
-                 seed_ok && (biased || seed_gouge <= kMaxGougeMm) && !missed ? "ok" : "OUT OF TOLERANCE",
+                 missed                 ? "GOUGE MISSED"
+                 : biased               ? (gouged ? "gouged on purpose, caught" : "not gouged past gouge_depth_mm")
+                 : seed_ok && seed_gouge <= kMaxGougeMm ? "ok"
+                                                        : "OUT OF TOLERANCE",
                  ver ? fettle::daemon::to_string(ver->verdict) : "error", vnote.c_str(), pms, seed_gouge,
                  app::seconds_since(ts), left.c_str());
   }
