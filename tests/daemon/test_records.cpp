@@ -104,6 +104,7 @@ TEST(Records, BeginWriteEndAndReadBack) {
     c->duration_s = 1.5;
     c->worst_gouge_mm = 0.58;  // the verification's worst gouge: `fettle cycles` shows it
     c->gouge = "gouged outside region side-parting-line at (46.10, -70.20, 34.40) mm (part frame), depth 0.580 mm";
+    c->deepest_below_template_mm = 0.58;
     ASSERT_TRUE(r.end(*c, {{"steps", nlohmann::json::array()}}));
     EXPECT_EQ(r.last()->result, "NOK");
     ASSERT_TRUE(r.last()->worst_gouge_mm.has_value());
@@ -120,6 +121,8 @@ TEST(Records, BeginWriteEndAndReadBack) {
   ASSERT_TRUE(c.worst_gouge_mm.has_value());
   EXPECT_DOUBLE_EQ(*c.worst_gouge_mm, 0.58);
   EXPECT_NE(c.gouge.find("gouged outside region side-parting-line"), std::string::npos) << c.gouge;
+  ASSERT_TRUE(c.deepest_below_template_mm.has_value());
+  EXPECT_DOUBLE_EQ(*c.deepest_below_template_mm, 0.58);
   EXPECT_FALSE(CycleSummary::from_json(CycleSummary{}.to_json()).worst_gouge_mm.has_value());  // no verification
   std::ifstream in(c.dir / "report.json");
   std::string text((std::istreambuf_iterator<char>(in)), {});

@@ -42,6 +42,7 @@ json CycleSummary::to_json() const {
   if (record_deleted) j["record_deleted"] = true;
   if (worst_gouge_mm) j["worst_gouge_mm"] = *worst_gouge_mm;
   if (!gouge.empty()) j["gouge"] = gouge;
+  if (deepest_below_template_mm) j["deepest_below_template_mm"] = *deepest_below_template_mm;
   return j;
 }
 
@@ -61,6 +62,8 @@ CycleSummary CycleSummary::from_json(const json& j) {
   s.record_deleted = j.value("record_deleted", false);
   if (j.contains("worst_gouge_mm") && j["worst_gouge_mm"].is_number()) s.worst_gouge_mm = j["worst_gouge_mm"].get<double>();
   s.gouge = j.value("gouge", "");
+  if (j.contains("deepest_below_template_mm") && j["deepest_below_template_mm"].is_number())
+    s.deepest_below_template_mm = j["deepest_below_template_mm"].get<double>();
   return s;
 }
 

@@ -1082,11 +1082,12 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
       s.result = c.result.empty() ? "NOK" : c.result;
     }
     if (c.verification) {
-      // `fettle cycles` shows it as a column: the deepest confirmed place below the template
-      // wherever the tool went, a gouge when over gouge_depth_mm (then `gouge` says where)
+      // `fettle cycles` shows them as columns: the worst gouge (0: none; `gouge` says where)
+      // and the deepest confirmed place below the template wherever the tool went
       const auto& g = c.verification->worst_gouge;
-      s.worst_gouge_mm = g ? g->depth_mm : c.verification->deepest_below_mm;
+      s.worst_gouge_mm = g ? g->depth_mm : 0.0;
       if (g) s.gouge = g->describe();
+      s.deepest_below_template_mm = c.verification->deepest_below_mm;
     }
     json report{{"cycle", s.to_json()},
                 {"result", s.result},

@@ -46,10 +46,13 @@ struct CycleSummary {
   std::string fault;         ///< Fault::describe()
   std::filesystem::path dir; ///< the cycle's record directory
   bool record_deleted = false;  ///< removed by retention
-  /// The verification's deepest confirmed place below the template wherever the tool went (mm;
-  /// none for a cycle without a verification scan); `gouge` says where when it is a gouge.
+  /// The verification's worst gouge (mm; 0 when none is deeper than gouge_depth_mm; none for a
+  /// cycle without a verification scan), `gouge` says where; and the deepest confirmed place
+  /// below the template wherever the tool went, gouge or not (a trend to watch: a calibration
+  /// drifting toward the part shows there before it gouges).
   std::optional<double> worst_gouge_mm;
   std::string gouge;
+  std::optional<double> deepest_below_template_mm;
 
   [[nodiscard]] nlohmann::json to_json() const;
   static CycleSummary from_json(const nlohmann::json& j);
