@@ -398,30 +398,12 @@ std::vector<std::string> VerificationResult::regrind_regions() const {
 
 namespace {
 
-/// Points of a cloud by 1-voxel cells, for the neighbours of a few candidates.
-class PointCells {
- public:
-  PointCells(const std::vector<Eigen::Vector3f>& pts, double cell) : pts_(pts), cell_(cell) {
-    for (std::size_t i = 0; i < pts.size(); ++i) cells_[key(pts[i].cast<double>())].push_back(i);
-  }
-  template <class F>
-  void within(const Vec3& q, double r, F&& f) const {
-    const auto c = coords(q);
-    const int n = static_cast<int>(std::ceil(r / cell_));
-    for (int dz = -n; dz <= n; ++dz)
-      for (int dy = -n; dy <= n; ++dy)
-        for (int dx = -n; dx <= n; ++dx) {
-          const auto it = cells_.find(pack(c[0] + dx, c[1] + dy, c[2] + dz));
-          if (it == cells_.end()) continue;
-          for (auto i : it->second)
-            if ((pts_[i].cast<double>() - q).squaredNorm() <= r * r) f(i);
-        }
-  }
-
- private:
+/// Integer cells of a uniform grid of `cell` mm, packed into one key (21 bits an axis).
+struct CellKeys {
+  double cell = 1.0;
   [[nodiscard]] std::array<std::int64_t, 3> coords(const Vec3& p) const {
-    return {static_cast<std::int64_t>(std::floor(p.x() / cell_)), static_cast<std::int64_t>(std::floor(p.y() / cell_)),
-            static_cast<std::int64_t>(std::floor(p.z() / cell_))};
+    return {static_cast<std::int64_t>(std::floor(p.x() / cell)), static_cast<std::int64_t>(std::floor(p.y() / cell)),
+            static_cast<std::int64_t>(std::floor(p.z() / cell))};
   }
   static std::int64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
     return ((x & 0x1FFFFF) << 42) | ((y & 0x1FFFFF) << 21) | (z & 0x1FFFFF);
@@ -430,11 +412,33 @@ class PointCells {
     const auto c = coords(p);
     return pack(c[0], c[1], c[2]);
   }
-  const std::vector<Eigen::Vector3f>& pts_;
-  double cell_;
-  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
 };
 
+/// Points of a cloud by cells, for the neighbours of a few candidates.
+class PointCells {
+ public:
+  PointCells(const std::vector<Eigen::Vector3f>& pts, double cell) : pts_(pts), keys_{cell} {
+    for (std::size_t i = 0; i < pts.size(); ++i) cells_[keys_.key(pts[i].cast<double>())].push_back(i);
+  }
+  template <class F>
+  void within(const Vec3& q, double r, F&& f) const {
+    const auto c = keys_.coords(q);
+    const int n = static_cast<int>(std::ceil(r / keys_.cell));
+    for (int dz = -n; dz <= n; ++dz)
+      for (int dy = -n; dy <= n; ++dy)
+        for (int dx = -n; dx <= n; ++dx) {
+          const auto it = cells_.find(CellKeys::pack(c[0] + dx, c[1] + dy, c[2] + dz));
+          if (it == cells_.end()) continue;
+          for (auto i : it->second)
+            if ((pts_[i].cast<double>() - q).squaredNorm() <= r * r) f(i);
+        }
+  }
+
+ private:
+  const std::vector<Eigen::Vector3f>& pts_;
+  CellKeys keys_;
+  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
+};
 
 /// The median signed distance of the points within `radius` of point k (k included): a gouge's
 /// depth as its neighbourhood confirms it. nullopt with fewer than 3 points there (an isolated
@@ -582,6 +586,36 @@ std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vec
   return out;
 }
 
+/// The swept volumes by the grid cells their bounding boxes overlap: a point tests only the
+/// volumes of its cell, in their order (the scan's 10^5 points against the trajectories' 10^4
+/// poses one by one made the verification seconds slower).
+class VolumeIndex {
+ public:
+  VolumeIndex(const std::vector<ToolVolume>& volumes, double cell) : volumes_(volumes), keys_{cell} {
+    for (std::size_t i = 0; i < volumes.size(); ++i) {
+      const auto& v = volumes[i];
+      const auto lo = keys_.coords(v.a.cwiseMin(v.b) - Vec3::Constant(v.radius));
+      const auto hi = keys_.coords(v.a.cwiseMax(v.b) + Vec3::Constant(v.radius));
+      for (auto z = lo[2]; z <= hi[2]; ++z)
+        for (auto y = lo[1]; y <= hi[1]; ++y)
+          for (auto x = lo[0]; x <= hi[0]; ++x) cells_[CellKeys::pack(x, y, z)].push_back(i);
+    }
+  }
+  /// The first volume holding q, or nullptr.
+  [[nodiscard]] const ToolVolume* containing(const Vec3& q) const {
+    const auto it = cells_.find(keys_.key(q));
+    if (it == cells_.end()) return nullptr;
+    for (auto i : it->second)
+      if (volumes_[i].contains(q)) return &volumes_[i];
+    return nullptr;
+  }
+
+ private:
+  const std::vector<ToolVolume>& volumes_;
+  CellKeys keys_;
+  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
+};
+
 }  // namespace
 
 std::string GougeFinding::describe() const {
@@ -634,16 +668,12 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   // Gouges wherever the tool went: the whole part's re-scan (part frame, the whole part's pose)
   // in every ROI and in the swept footprint of every uploaded pose and move. A place counts
   // when the median of the points within gouge_confirm_radius_mm lies more than gouge_depth_mm
-  // below the template (tests Verify.AGougeOutsideEveryRoiIsFoundAndNamed,
-  // Verify.ScanNoiseAloneIsNoGouge).
+  // below the template (tests Pipeline.VerifyFindsAGougeOutsideEveryRoiWhereTheToolWent,
+  // Pipeline.VerifyFindsNoGougeWhereAnExactlyGroundCastingWasGround).
   {
     const auto& scene = ins->scene_part.points;
     const auto volumes = swept_volumes(loaded, ground, out.T_base_part.inverse());
-    Vec3 vlo = Vec3::Constant(std::numeric_limits<double>::infinity()), vhi = -vlo;
-    for (const auto& v : volumes) {
-      vlo = vlo.cwiseMin(v.a.cwiseMin(v.b) - Vec3::Constant(v.radius));
-      vhi = vhi.cwiseMax(v.a.cwiseMax(v.b) + Vec3::Constant(v.radius));
-    }
+    const VolumeIndex footprint(volumes, 8.0);
     std::vector<float> residual(scene.size());
     for (std::size_t k = 0; k < scene.size(); ++k)
       residual[k] = static_cast<float>(loaded.template_sdf(scene[k].cast<double>()));
@@ -654,24 +684,16 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
           region = r.name, in_roi = true;
           return true;
         }
-      if ((q.array() < vlo.array()).any() || (q.array() > vhi.array()).any()) return false;
-      for (const auto& v : volumes)
-        if (v.contains(q)) {
-          region = recipe.regions[v.region].name, in_roi = false;
-          return true;
-        }
+      if (const ToolVolume* v = footprint.containing(q)) {
+        region = recipe.regions[v->region].name, in_roi = false;
+        return true;
+      }
       return false;
     };
-    for (std::size_t k = 0; k < scene.size(); ++k) {
-      const Vec3 q = scene[k].cast<double>();
-      bool in_any_roi = false;
-      for (const auto& r : recipe.regions) in_any_roi = in_any_roi || config::roi_contains(r, scene[k]);
-      if (in_any_roi || (q.array() < vlo.array()).any() || (q.array() > vhi.array()).any()) continue;
-      for (const auto& v : volumes)
-        if (v.contains(q)) {
-          ++out.footprint_points;
-          break;
-        }
+    for (const auto& p : scene) {
+      std::string region;
+      bool in_roi = false;
+      if (place(p.cast<double>(), region, in_roi) && !in_roi) ++out.footprint_points;
     }
     // candidates from half the gouge depth: the deepest confirmed place is reported even when it
     // is no gouge
