@@ -15,7 +15,6 @@ namespace fettle::planning {
 namespace {
 
 constexpr std::size_t kMinRegionPoints = 20;
-constexpr double kSweepStepMm = 1.0;  ///< validation samples moves between points this finely
 constexpr double kBackoffTolMm = 0.002;  ///< a back-off leaves at most this much more than needed
 constexpr double kProbeNearMm = 2.0;     ///< tool_penetration_mm: probes are exact at least this near
 /// validate(): a pose nearer the template than the clearance by more than this is a gouge. The
@@ -143,24 +142,6 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
     (pen(mid) > 1e-6 ? lo : hi) = mid;
   }
   T_part_tool.translation() += hi * dir;
-  return true;
-}
-
-/// The poses strictly between a and b that validation checks on a move: every kSweepStepMm
-/// along the straight line, orientation by slerp. fn(m) returns false to stop early; the
-/// function returns false then.
-template <class Fn>
-bool for_each_move_sample(const Pose& a, const Pose& b, Fn&& fn) {
-  const double len = (b.position_mm - a.position_mm).norm();
-  // a move of one step (a raster's point spacing) has no sample between its ends in either
-  // frame: the located part's rotation, from single-precision registration, stretches lengths
-  // by up to a few 1e-8 from the part frame to the base frame
-  const int steps = static_cast<int>(std::ceil(len / kSweepStepMm - 1e-6));
-  for (int k = 1; k < steps; ++k) {
-    const double f = static_cast<double>(k) / steps;
-    const Pose m{a.position_mm + f * (b.position_mm - a.position_mm), a.orientation.slerp(f, b.orientation).normalized()};
-    if (!fn(m)) return false;
-  }
   return true;
 }
 
@@ -995,7 +976,7 @@ Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& in
     };
     if (auto e = gouge(p.T_base_tool, "")) return *e;
     // The move onto this point (approach descents, lifts, leads, moves between passes and
-    // regions): sampled every kSweepStepMm with the tool of this point's region.
+    // regions): sampled every kMoveSampleMm with the tool of this point's region.
     if (i > 0) {
       std::optional<Error> hit;
       for_each_move_sample(trajectory.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {

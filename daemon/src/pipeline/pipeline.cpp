@@ -548,7 +548,6 @@ struct ToolVolume {
 /// sampling), as tool volumes in the part frame.
 std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground,
                                       const Transform& T_part_base) {
-  constexpr double kStepMm = 1.0;
   const auto& recipe = loaded.recipe;
   std::vector<ToolVolume> out;
   for (const auto& traj : ground) {
@@ -571,16 +570,12 @@ std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vec
         v.radius = R + grow;
         out.push_back(v);
       };
-      const Pose& b = traj.points[i].T_base_tool;
-      if (i > 0) {
-        const Pose& a = traj.points[i - 1].T_base_tool;
-        const int steps = static_cast<int>(std::ceil((b.position_mm - a.position_mm).norm() / kStepMm));
-        for (int k = 1; k < steps; ++k) {
-          const double f = static_cast<double>(k) / steps;
-          add(Pose{a.position_mm + f * (b.position_mm - a.position_mm), a.orientation.slerp(f, b.orientation).normalized()});
-        }
-      }
-      add(b);
+      if (i > 0)
+        planning::for_each_move_sample(traj.points[i - 1].T_base_tool, traj.points[i].T_base_tool, [&](const Pose& m) {
+          add(m);
+          return true;
+        });
+      add(traj.points[i].T_base_tool);
     }
   }
   return out;

@@ -7,6 +7,7 @@
 // the tool tip; the tool z axis points from the tip toward the spindle (away from the part).
 // A ball tool's sphere centre is TCP + R·z; a cylinder tool occupies TCP + [0, length]·z with
 // radius R. See docs/planning.md.
+#include <cmath>
 #include <functional>
 #include <string>
 #include <type_traits>
@@ -144,6 +145,28 @@ double air_move_length_mm(const std::vector<RegionPlan>& plans, const std::vecto
 /// Assembles the region plans in `order` with approach / retract moves at the safe height.
 Trajectory assemble(const std::string& part_id, const std::vector<RegionPlan>& plans,
                     const std::vector<std::size_t>& order, const PlannerSettings& settings);
+
+/// validate() samples the moves between points this finely.
+inline constexpr double kMoveSampleMm = 1.0;
+
+/// The poses strictly between a and b that validate() checks on a move: every kMoveSampleMm
+/// along the straight line, orientation by slerp. fn(m) returns false to stop early; the
+/// function returns false then. The planner clears its moves and the verification sweeps the
+/// tool's footprint on these same samples.
+template <class Fn>
+bool for_each_move_sample(const Pose& a, const Pose& b, Fn&& fn) {
+  const double len = (b.position_mm - a.position_mm).norm();
+  // a move of one step (a raster's point spacing) has no sample between its ends in either
+  // frame: the located part's rotation, from single-precision registration, stretches lengths
+  // by up to a few 1e-8 from the part frame to the base frame
+  const int steps = static_cast<int>(std::ceil(len / kMoveSampleMm - 1e-6));
+  for (int k = 1; k < steps; ++k) {
+    const double f = static_cast<double>(k) / steps;
+    const Pose m{a.position_mm + f * (b.position_mm - a.position_mm), a.orientation.slerp(f, b.orientation).normalized()};
+    if (!fn(m)) return false;
+  }
+  return true;
+}
 
 /// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge": at every point and along
 /// the move onto it, sampled every 1 mm (approach descents, lifts, leads, lead-outs, the moves
