@@ -149,17 +149,23 @@ bool back_off(const config::Tool& tool, Transform& T_part_tool, const SignedDist
 /// template dips between two clear points, a move can still cut a little: push both ends of
 /// such a move out along their retreat directions until every sample of it keeps
 /// `clearance_mm` too, and every pose so pushed still keeps it itself (beside an edge the
-/// sampled template is uneven, and a pose pushed up can read nearer than where it was). False
-/// when max_mm is not enough.
-bool clear_moves(const config::Tool& tool, std::vector<Transform>& poses, const std::vector<Vec3>& retreats,
-                 const SignedDistance& sdf, double clearance_mm, double max_mm) {
+/// sampled template is uneven, and a pose pushed up can read nearer than where it was).
+/// Returns the move (i - 1, i) as i when that takes more than max_mm or more rounds than a dip
+/// does (a steep move up onto a higher feature: its ends creep up by the cut's depth a round),
+/// nullopt when every move keeps the clearance.
+std::optional<std::size_t> clear_moves(const config::Tool& tool, std::vector<Transform>& poses,
+                                       const std::vector<Vec3>& retreats, const SignedDistance& sdf,
+                                       double clearance_mm, double max_mm) {
+  constexpr int kRounds = 25;
   std::vector<double> pushed(poses.size(), 0.0);
-  for (int round = 0; round < 25; ++round) {
+  std::vector<std::size_t> pushed_by(poses.size(), 1);  // the move that last pushed the pose
+  std::size_t last_cut = 1;
+  for (int round = 0; round < kRounds; ++round) {
     bool moved = false;
     for (std::size_t i = 0; i < poses.size(); ++i) {
       if (pushed[i] <= 0.0) continue;  // as placed (backed off by the caller)
       const Vec3 at = poses[i].translation();
-      if (!back_off(tool, poses[i], sdf, retreats[i], clearance_mm, max_mm - pushed[i])) return false;
+      if (!back_off(tool, poses[i], sdf, retreats[i], clearance_mm, max_mm - pushed[i])) return pushed_by[i];
       if (const double d = (poses[i].translation() - at).norm(); d > 0.0) pushed[i] += d, moved = true;
     }
     for (std::size_t i = 1; i < poses.size(); ++i) {
@@ -171,15 +177,17 @@ bool clear_moves(const config::Tool& tool, std::vector<Transform>& poses, const 
       if (worst <= 1e-6) continue;
       const double step = worst + 0.01;
       for (std::size_t j : {i - 1, i}) {
-        if (pushed[j] + step > max_mm) return false;
+        if (pushed[j] + step > max_mm) return i;
         poses[j].translation() += step * retreats[j];
         pushed[j] += step;
+        pushed_by[j] = i;
       }
+      last_cut = i;
       moved = true;
     }
-    if (!moved) return true;
+    if (!moved) return std::nullopt;
   }
-  return false;
+  return last_cut;
 }
 
 TrajectoryPoint make_point(const Transform& T_base_part, const Transform& T_part_tool, double speed, double rpm,
@@ -322,9 +330,11 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
     normals.push_back(n);
     retreats.push_back(retreat);
   }
-  if (!clear_moves(tool, poses, retreats, in.template_sdf, region.allowance_mm, settings.max_backoff_mm))
+  if (const auto cut = clear_moves(tool, poses, retreats, in.template_sdf, region.allowance_mm, settings.max_backoff_mm))
     return region_error(region.name, "gouge",
-                        "the moves between the contact points cannot keep the allowance from the template (pushed out " +
+                        "the move between contact points " + std::to_string(*cut - 1) + " and " + std::to_string(*cut) +
+                            " at " + fmt(poses[*cut - 1].translation()) +
+                            " cannot keep the allowance from the template (pushed out up to " +
                             fmt(settings.max_backoff_mm) + " mm); use a smaller tool, another chamfer_deg or contact");
   const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
   auto lead = [&](const Transform& T, const Vec3& n) {
@@ -474,7 +484,7 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
     // (a wall beside the pad): a raster point there that covers no material, or none higher
     // than leave_unreachable_mm (noise at the pad's edge), is left out (the highest such
     // material in left_mm) and the tool lifts over the gap; higher material is an error.
-    std::vector<std::pair<Transform, bool>> layer;  // pose, after a left-out point
+    std::vector<std::pair<Transform, bool>> layer;  // pose, lifted onto (after a left-out point or an uncleared move)
     bool gap = false;
     for (int r = 0; r < rows; ++r) {
       const double b = std::min(bmax, bmin + r * step);
@@ -504,17 +514,20 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
                           "layer " + std::to_string(segment) + ": no raster point lets the tool pass without cutting the template");
     // The moves between directly connected raster points (a row, the step to the next row) keep
     // the allowance too, as validation samples them: beside the pad's edge a sample between two
-    // clear points can come nearer than they do (test RiserPlan.LayersCoverTheFootprintAndLeaveTheAllowance).
+    // clear points can come nearer than they do, and clear_moves pushes the run up out of such a
+    // dip (test RiserPlan.LayersCoverTheFootprintAndLeaveTheAllowance). A move it cannot clear
+    // (steeply up onto a higher feature the raster reaches over) becomes a gap the tool lifts
+    // over, and the run is cleared again in two (test RiserPlan.AMoveUpOntoAHigherBlockBesideThePadIsLiftedOver).
     for (std::size_t k0 = 0; k0 < layer.size();) {
       std::size_t k1 = k0 + 1;
       while (k1 < layer.size() && !layer[k1].second) ++k1;
       std::vector<Transform> run;
       for (std::size_t k = k0; k < k1; ++k) run.push_back(layer[k].first);
-      if (!clear_moves(tool, run, std::vector<Vec3>(run.size(), up), in.template_sdf, region.allowance_mm,
-                       settings.max_backoff_mm))
-        return region_error(region.name, "gouge",
-                            "layer " + std::to_string(segment) + ": the moves between the raster points from " +
-                                fmt(run.front().translation()) + " cannot keep the allowance from the template");
+      if (const auto cut = clear_moves(tool, run, std::vector<Vec3>(run.size(), up), in.template_sdf,
+                                       region.allowance_mm, settings.max_backoff_mm)) {
+        layer[k0 + *cut].second = true;
+        continue;
+      }
       for (std::size_t k = k0; k < k1; ++k) layer[k].first = run[k - k0];
       k0 = k1;
     }

@@ -69,8 +69,7 @@ TEST(RiserPlan, LayersCoverTheFootprintAndLeaveTheAllowance) {
 
 // Stray excess points along two sides of the pad stretch the raster's bounding box to a corner
 // over a tall column beside the pad, where the tool cannot go at any height the back-off allows:
-// the raster leaves out the points there that cover no material and lifts over the gap (casting
-// 50 of `make accuracy` was refused for such a corner). Material under an unreachable point is
+// the raster leaves out the points there that cover no material and lifts over the gap. Material under an unreachable point is
 // left when it is no higher than leave_unreachable_mm (RegionPlan::left_mm says so), else it is an
 // error naming it.
 TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) {
@@ -120,6 +119,53 @@ TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) 
   EXPECT_NE(refused.error().message.find("cannot reach the riser material"), std::string::npos) << refused.error().message;
   EXPECT_NE(refused.error().message.find("(-63.00, 27.00, 45.60), 0.60 mm above"), std::string::npos)
       << refused.error().message;
+}
+
+// A flat-ended tool's raster reaches over a block beside the pad (the flange beside a casting's
+// riser, up to 10 mm above a layer; stray excess points stretch the raster's
+// bounding box over it): the points over the block back off up onto it, and the steep moves up
+// onto it cut the block's edge. Pushing both ends of such a move up, as for a dip of the
+// sampled template, does not clear it within the back-off limit: the raster lifts over the move
+// as over a left-out point, grinds the rest, and the whole trajectory keeps the allowance.
+TEST(RiserPlan, AMoveUpOntoAHigherBlockBesideThePadIsLiftedOver) {
+  auto scene = make_scene();
+  RegionInput in = scene.inputs[1];
+  config::Tool flat;  // the pump body's flat-16 cup wheel
+  flat.name = "flat-16";
+  flat.shape = config::ToolShape::cylinder;
+  flat.diameter_mm = 16.0;
+  flat.length_mm = 10.0;
+  flat.tcp_mm = {0, 0, 160};
+  in.tool = &flat;
+  const Vec3 block_lo(-62, 14, 0), block_hi(-40, 29, 55);  // 8 mm above the first layer (z 54.3)
+  in.template_sdf = [=](const Vec3& p) { return std::min(part_sdf(p), testing::sdf_box(p, block_lo, block_hi)); };
+  in.excess_points_part.emplace_back(-64.0, 52.0, 45.4);  // amax: -61
+  in.excess_points_part.emplace_back(-84.0, 26.0, 45.4);  // bmin: 23
+  const PlannerSettings settings;
+  const auto plan = plan_region(in, settings);
+  ASSERT_TRUE(plan) << plan.error().message;
+  const double R = 8.0;
+  std::size_t grind = 0, air = 0, on_block = 0;
+  for (const auto& p : plan->points) {
+    (p.kind == MoveKind::grind ? grind : air) += 1;
+    const Vec3& x = p.T_base_tool.position_mm;
+    if (p.kind == MoveKind::grind && x.x() > block_lo.x() - R && x.y() < block_hi.y() + R) on_block += 1;
+  }
+  EXPECT_GT(grind, 100U);
+  EXPECT_GT(on_block, 0U);  // the raster does go up onto the block (it backs off there)
+  EXPECT_GT(air, 2U * (plan->segments - 1U));  // and lifts over the moves up onto it
+  EXPECT_EQ(plan->left_mm, 0.0);
+  // every material point is under the wheel of some grinding point
+  for (const auto& m : in.excess_points_part) {
+    bool covered = false;
+    for (const auto& p : plan->points)
+      covered = covered || (p.kind == MoveKind::grind &&
+                            (p.T_base_tool.position_mm.head<2>() - m.head<2>()).norm() <= R + 1e-9);
+    EXPECT_TRUE(covered) << m.transpose();
+  }
+  // every pose and move of the whole trajectory keeps the allowance (plan_part validates it)
+  const auto traj = plan_part("p", {in}, settings);
+  ASSERT_TRUE(traj) << traj.error().message;
 }
 
 // A lift is checked on its way up and down too: a slab over the pad (an overhang the ball
