@@ -37,7 +37,7 @@ test-unit: build
 	cd $(BUILD_DIR) && ctest --output-on-failure -j $(JOBS) -L unit
 
 # Every test under AddressSanitizer + UndefinedBehaviorSanitizer (clang, build-asan). -O1 with
-# line tables only: it builds in about the time of the plain build (gcc -O2 -g with ASan took
+# line tables only: it builds in about the time of the plain build (gcc -O2 -g with ASan takes
 # four times as long for vision's PCL-heavy files), and stack traces still name file and line.
 ASAN_FLAGS = -O1 -gline-tables-only -DNDEBUG
 # The recipe caches the plain build's slow tests left in $(BUILD_DIR)/test-cache (the planner's

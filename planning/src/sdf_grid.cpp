@@ -23,8 +23,9 @@ constexpr int kBrickValues = kNodes * kNodes * kNodes;
 constexpr int kFlagWords = kCells * kCells * kCells / 64;
 constexpr double kScale = 2000.0;      ///< band level: int16 units per mm (0.5 µm steps, ±16.38 mm)
 constexpr double kFarScale = 500.0;    ///< far level: 2 µm steps, ±65.5 mm
-/// The last byte is the file format's version (2: settings with kink_jump_mm; 3: checksum and
-/// key with FNV-1a's published offset basis, a digit was missing before).
+/// The last byte is the file format's version: a cache of another version is rebuilt, never
+/// read (test SdfGridCache.ACorruptOrTruncatedFileIsNeverTrusted). 3: settings with
+/// kink_jump_mm, a checksum, and the key with FNV-1a's published offset basis.
 constexpr std::array<char, 8> kMagic{'F', 'T', 'L', 'S', 'D', 'F', 'G', '3'};
 
 /// FNV-1a, 64 bit (Fowler, Noll, Vo): offset basis 14695981039346656037, prime 1099511628211.

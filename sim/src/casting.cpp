@@ -231,8 +231,8 @@ double CastingModel::golden_sdf(const Vec3& p) const {
       d = std::min(d, inside);
     } else if (b.top_slope_deg[0] != 0.0 || b.top_slope_deg[1] != 0.0) {
       // outside a tilted top: the exact distance to the polyhedron (the untilted box's distance
-      // read the tilted block's low edge 3.9 mm higher than it is: a ball passing beside it read
-      // gouged up to 0.55 mm; test Casting.GoldenDistanceBesideATiltedBlockIsExact)
+      // reads the tilted block's low edge 3.9 mm higher than it is: a ball passing beside it
+      // reads gouged up to 0.55 mm; test Casting.GoldenDistanceBesideATiltedBlockIsExact)
       d = std::min(d, tilted_box_outside_distance(p, b));
     } else {
       // outside an axis-aligned box: the distance to the box, exact
@@ -677,7 +677,7 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
   Rng cr(seed, 0xC1A77E5);
   for (int k = 0; k < g.clutter_items; ++k) {
     for (int attempt = 0; attempt < 50; ++attempt) {
-      // Drawn one per statement, last coordinate first: the order gcc evaluated the former
+      // Drawn one per statement, last coordinate first: the order gcc evaluates
       // Vec3(cr.uniform(..), cr.uniform(..), cr.uniform(..)) in, so seeds keep their scenes and
       // every compiler builds the same one (argument order is unspecified in C++).
       const double sz = cr.uniform(2, 18), sy = cr.uniform(8, 40), sx = cr.uniform(8, 40);

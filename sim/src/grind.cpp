@@ -340,7 +340,7 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
   const std::size_t report_every = std::max<std::size_t>(1, poses.size() / 20);
   for (std::size_t pi = 0; pi < poses.size(); ++pi) {
     const auto& p = poses[pi];
-    // z, y, x: gcc's order for the former Vec3(rng.gaussian(), ...), sequenced for every compiler.
+    // z, y, x: gcc's order for Vec3(rng.gaussian(), ...), sequenced so every compiler draws it.
     const double nz = rng.gaussian(), ny = rng.gaussian(), nx = rng.gaussian();
     const Vec3 noise(nx, ny, nz);
     const Vec3 x_base = p.x + opt.path_noise_mm * noise + opt.path_bias_mm;

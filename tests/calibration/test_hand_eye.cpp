@@ -422,7 +422,7 @@ std::vector<Vec3> sphere_scan(const Vec3& centre, double radius, double noise_mm
   std::vector<Vec3> pts;
   const Vec3 to_cam = -centre.normalized();
   while (pts.size() < 2000) {
-    // Sequenced as gcc drew them (tests/support/draws.hpp): four draws the data was measured
+    // Sequenced as gcc draws them (tests/support/draws.hpp): four draws the data is measured
     // with and that are not used (arguments right to left, within the first n before u), then
     // the direction.
     (void)fettle::test::draws<2>(u, rng);

@@ -100,8 +100,8 @@ std::string cell_toml(const fs::path& dir, int plc, int robot, int spindle) {
     << "chunk_points = 20\nrun_timeout_ms = " << static_cast<long>(120000 * time_scale())
     << "\nreconnect_initial_ms = 100\nreconnect_max_ms = 500\n\n"
     << "[spindle]\ntransport = \"socketcand\"\naddress = \"127.0.0.1\"\nport = " << spindle
-    // heartbeat as in config/cell.sim.toml: the default 300 ms was missed once while the
-    // test process (which hosts the simulated drive) built a casting on a busy machine
+    // heartbeat as in config/cell.sim.toml: the default 300 ms can be missed while the test
+    // process (which hosts the simulated drive) builds a casting on a busy machine
     << "\ninterface = \"can0\"\nnode_id = 1\nmode = \"profile_velocity\"\nheartbeat_timeout_ms = 1000\n\n"
     << "[calibration]\nfile = \"" << (kSource / "config/calibration.sim.toml").string() << "\"\n\n"
     << "[safety]\nworkspace_min_mm = [-600.0, -600.0, -20.0]\nworkspace_max_mm = [600.0, 600.0, 800.0]\n"
@@ -190,9 +190,8 @@ class Fettled : public ::testing::Test {
     o.plc_port = o.robot_port = o.spindle_port = 0;
     o.castings = 0;
     o.auto_start = false;
-    // The simulator's default, as in the demo (a run takes 15-30 s there; it was 4 until
-    // 2026-12-02, which made A 2.5 times longer); the mid-run scenarios act within a second of
-    // the spindle starting.
+    // The simulator's default, as in the demo (a run takes 15-30 s there; at 4, A takes 2.5
+    // times longer); the mid-run scenarios act within a second of the spindle starting.
     o.robot_speedup = 10.0;
     cell_ = new fettle::sim::CellSim(o);
     cell_->on_event([](const std::string& line) { std::cerr << "[cell] " << line << "\n"; });
@@ -367,7 +366,7 @@ std::optional<int> Fettled::reaped_;
 
 // Each TEST below runs in its own process under ctest (gtest_discover_tests), with its own
 // fettled and simulated cell. A: the three cycles (~105 s on the 2-core machine, ~320 s
-// under ASan; 265 s and 400 s with the robot's speed-up at 4 until 2026-12-02).
+// under ASan).
 // B: one scenario per fault, in one process so the journal can be checked across them all.
 TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
   ASSERT_TRUE(reaches(State::stopped, 300s));
@@ -423,8 +422,8 @@ TEST_F(Fettled, B_EveryFaultEndsInItsStateAndTheCellRecovers) {
          plc("drop");
        }},
       // The slide already in fault when the cycle commands it: no new slide state arrives, so
-      // fettled must read the fault it already knows (it waited out travel_timeout_ms and
-      // reported 104 before; found by the soak).
+      // fettled must read the fault it already knows, not wait out travel_timeout_ms and report
+      // a timeout (104).
       {"slide faulted before the cycle", 105, State::held, 10s,
        [] {
          cell_->load(3);

@@ -50,9 +50,9 @@ void clean(const TrialRun& t) {
 }
 
 TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
-  // Not the acceptance (that is the disabled test below): the closed loop runs, every region
+  // Not the acceptance (that is the test below, 0.1 mm): the closed loop runs, every region
   // is planned and evaluated, and the numbers are where docs/planning.md says. A gouge deeper
-  // than 0.5 mm would be a regression (2026-12-02: 0.19 mm deepest on this seed).
+  // than 0.5 mm is a regression.
   const auto t = run_trial("1-1");
   ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
   EXPECT_TRUE(WIFEXITED(t.rc) && (WEXITSTATUS(t.rc) == 0 || WEXITSTATUS(t.rc) == 1)) << t.log;
@@ -77,8 +77,8 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
     EXPECT_GE(r.at("plan").at("material_left_length_mm").get<double>(), 0.0) << name;
     EXPECT_TRUE(r.contains("template_comparison")) << name;
     // where the vision stage put the region: its template within 0.2 mm RMS of the casting's
-    // true surface (seed 1, 2026-12-03: 0.06-0.12 mm with the recipe's form deviation), the
-    // pose errors at the ROI centre given
+    // true surface (0.06-0.12 mm on this casting with the recipe's form deviation), the pose
+    // errors at the ROI centre given
     ASSERT_TRUE(r.contains("vision")) << name;
     const auto& v = r.at("vision");
     EXPECT_LT(v.at("template_rms_to_true_surface_mm").at("region_pose").get<double>(), 0.2) << name;
@@ -104,10 +104,9 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
   if (!HasFailure()) clean(t);
 }
 
-// Enabled 2026-12-03 (disabled since 2026-12-02: gouges 0.13-0.20 mm, and the flange's ROI held
-// no point of the re-scan). Seeds 1-2 of `make accuracy` at 5c667e5: gouges 0.028 and 0.023 mm,
-// every region type <= 0.06 % > 0.3 mm and <= 0.004 % > 0.5 mm. On 50 seeds 3 boss gouges are
-// still 0.10-0.14 mm (README, "Closed-loop accuracy").
+// Issue 5's acceptance on the two castings CI can afford: every region type within its shares
+// of the ROI points and no gouge deeper than 0.1 mm. `make accuracy` asks the same of 50
+// castings drawn at run time (latest figures in docs/results.md).
 TEST(Trial, TwoSeedsMeetTheAcceptanceThresholds) {
   const auto t = run_trial("1-2");
   ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;

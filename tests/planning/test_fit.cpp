@@ -23,8 +23,8 @@ std::vector<Vec3> plane_points(const Vec3& normal, double d, int n, double noise
   std::vector<Vec3> pts;
   for (int i = 0; i < n; ++i) {
     // The draws are sequenced (C++ leaves the order of arguments and operands unspecified: gcc
-    // drew these right to left, clang left to right, and the two saw different data); the
-    // order is gcc's, the one the expectations below were measured with.
+    // draws them right to left, clang left to right, and the two would see different data); the
+    // order is gcc's, the one the expectations below are measured with.
     if (i < static_cast<int>(outlier_fraction * n)) {
       const double z = u(rng), y = u(rng), x = u(rng);
       pts.emplace_back(x, y, z);

@@ -170,8 +170,8 @@ TEST(RiserPlan, AMoveUpOntoAHigherBlockBesideThePadIsLiftedOver) {
 
 // A lift is checked on its way up and down too: a slab over the pad (an overhang the ball
 // passes under while grinding) is in the way of the lift between the riser's layers, however
-// high it goes, and the plan is refused naming the move (the lift used to be added regardless,
-// and only validation's allowance-deep limit stood between it and the slab).
+// high it goes, and the plan is refused naming the move (the planner does not leave a lift
+// through the slab for validation to catch).
 TEST(RiserPlan, ALiftUnderAnOverhangIsRefusedNamingTheMove) {
   auto scene = make_scene();
   RegionInput in = scene.inputs[1];
@@ -243,8 +243,8 @@ TEST(RiserPlan, ABackOffKeepsAnAllowanceBeyondTwoMillimetres) {
 
 // A ring is fitted only to flash that goes round it and only where the recipe says the ring is:
 // a re-grind's leftover arc or a region the camera barely sees is refused with the reason, never
-// turned into a loop around a guessed ellipse (the demo's re-grind once put the disc 7 mm into
-// the flange that way).
+// turned into a loop around a guessed ellipse (a ring guessed from a re-grind's arc can put
+// the disc 7 mm into the flange).
 TEST(RingPlan, AShortArcOrARingOutsideTheRoiIsRefusedWithTheReason) {
   auto scene = make_scene();
   RegionInput arc = scene.inputs[0];
@@ -384,8 +384,9 @@ TEST(StraightPlan, StrayExcessPointsAlongTheLineDoNotStretchThePasses) {
 
 // A broad patch of the face 0.2 mm proud of the template beside the fin's end (the casting's
 // form deviation where the whole part's fit leaves it: an unseen casting's excess points held one
-// of 180 points at x 2..21, y -80..-70): it is no fin, and the line stays on the fin (it was
-// drawn 5 degrees across it, and the passes left the fin 0.5-0.9 mm high over 10 mm).
+// of 180 points at x 2..21, y -80..-70): it is no fin, and the line stays on the fin (a line
+// fitted to every point runs 5 degrees across it, and its passes leave the fin 0.5-0.9 mm high
+// over 10 mm).
 TEST(StraightPlan, ALowPatchBesideTheFinDoesNotTiltTheLine) {
   auto scene = make_scene();
   auto& in = scene.inputs[3];

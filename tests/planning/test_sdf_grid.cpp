@@ -79,8 +79,8 @@ Errors measure(const SdfGrid& grid, int n, unsigned seed) {
       z(s.lo.z() - 2, s.hi.z() + 15);
   Errors e;
   for (int k = 0; k < n; ++k) {
-    // Sequenced draws, in the order gcc evaluated Vec3(x(rng), y(rng), z(rng)) (right to left;
-    // clang goes left to right and measured other points): the figures below are from it.
+    // Sequenced draws, in the order gcc evaluates Vec3(x(rng), y(rng), z(rng)) (right to left;
+    // clang goes left to right and would measure other points): the figures below are from it.
     const double pz = z(rng), py = y(rng), px = x(rng);
     const Vec3 p(px, py, pz);
     const double truth = s.exact(p);
@@ -145,8 +145,8 @@ TEST(SdfGrid, ATighterToleranceAnswersMoreCellsExactly) {
 // near(p, d): where the exact distance is within +-d it is the grid's answer (exact in kink
 // cells); farther, a kink cell may answer from the lattice, with the right sign, beyond d and
 // within the cell's bound (half its diagonal + kink_jump_mm) of the exact distance. Tool probes
-// ask it: the exact function in kink cells a few millimetres off the surface was most of the
-// planning time. The points keep 5 mm inside the sampled patches' open borders: beside an open
+// ask it: the exact function in kink cells a few millimetres off the surface would be most of
+// the planning time. The points keep 5 mm inside the sampled patches' open borders: beside an open
 // border the sampled function flips sign across the patch's plane (a jump no bound covers; a
 // golden seen from above is open only at the table, where no tool goes).
 TEST(SdfGrid, NearIsExactNearTheSurfaceAndBoundedBeyondIt) {

@@ -69,8 +69,8 @@ TEST(SampledSdf, EdgesAreNeitherFalseGougesNorFalseContacts) {
 
 // Just past a wall's top edge and above the top (a flat tool's rim over the riser pad's edge):
 // the wall's top sample is nearest, the point is off its sampled patch, and the wall's plane
-// alone said 0.03 mm for a point 0.25 mm above the top; lifting the tool never changed that, and
-// an unseen casting's riser was refused. Outside a convex edge both planes bound the distance.
+// alone says 0.03 mm for a point 0.25 mm above the top, however high the tool lifts, so a riser
+// plan beside the pad would be refused. Outside a convex edge both planes bound the distance.
 TEST(SampledSdf, DiagonallyOffAConvexEdgeTheDistanceIsNotTheWallsAlone) {
   for (const bool wall_top_sample : {false, true}) {
     std::vector<Vec3> pts, nrm;
@@ -85,10 +85,10 @@ TEST(SampledSdf, DiagonallyOffAConvexEdgeTheDistanceIsNotTheWallsAlone) {
 }
 
 // A sampled edge is rarely exact: the top face's last sample can sit a few hundredths of a
-// millimetre beside the wall's plane (the simulator's golden drew the boss wall as a staircase
-// until 1f52896). Judged from the wall's side alone that convex edge looked concave, the top's
-// tangent plane won, and points beside the wall below the top read as inside: the demo's burr
-// was refused for a 12.8 mm "gouge" 9 mm beside the boss. The convexity test is symmetric now.
+// millimetre beside the wall's plane (a wall sampled as a staircase). Judged from the wall's
+// side alone that convex edge looks concave, the top's tangent plane wins, and points beside
+// the wall below the top read as inside: a burr beside the boss would be refused for a 12.8 mm
+// "gouge" 9 mm from it. The convexity test is symmetric: the edge is judged from both sides.
 TEST(SampledSdf, AConvexEdgeStaysConvexWhenTheTopSampleOverhangsTheWall) {
   std::vector<Vec3> pts, nrm;
   for (double x = -19.95; x <= 0.06; x += 0.5)  // the top's last column at x = +0.05, beside the wall

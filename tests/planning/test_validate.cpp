@@ -242,7 +242,7 @@ TEST(ValidateLimits, AHostileTrajectoryIsRefusedAtThePointThatBreaksTheCellLimit
   refused("speed", a, [&](TrajectoryPoint& q) { q.speed_mm_s = nan; });
   refused("speed", a, [](TrajectoryPoint& q) { q.speed_mm_s = 0.0; });
   refused("speed", g, [&](TrajectoryPoint& q) { q.spindle_rpm = safety.max_spindle_rpm + 1.0; });
-  refused("speed", a, [&](TrajectoryPoint& q) { q.spindle_rpm = nan; });  // passed the old check off a grind move
+  refused("speed", a, [&](TrajectoryPoint& q) { q.spindle_rpm = nan; });  // NaN passes a plain `> max` check
   refused("speed", a, [](TrajectoryPoint& q) { q.spindle_rpm = -1.0; });
   // The cell's limits, not the planner's defaults: a tighter [safety] refuses the same trajectory.
   config::SafetySection tight;

@@ -237,7 +237,7 @@ TEST(SimGeometry, GoldenDistanceBesideATiltedBlockIsExact) {
   const fettle::Vec3 beside(53.0, -70.0, 37.5);
   EXPECT_NEAR(g.golden_sdf_mm(beside), std::hypot(2.0, 37.5 - edge_z), 1e-9);
   EXPECT_NEAR(g.distance_to_golden_mm(beside), std::hypot(2.0, 37.5 - edge_z), 0.1);
-  // inside the block: the tilted top's plane distance, as before
+  // inside the block: the tilted top's plane distance
   const fettle::Vec3 in(100.0, -20.0, 39.0);
   EXPECT_NEAR(g.golden_sdf_mm(in), (39.0 - (40.0 + slope * (100.0 - 82.5))) * std::cos(8.0 * pi() / 180.0), 1e-9);
 }

@@ -3,7 +3,7 @@
 // operands) are evaluated unspecified: Vec3(u(rng), u(rng), u(rng)) is drawn right to left by
 // gcc and left to right by clang, so a test written that way sees different data under the
 // sanitizer builds (clang) than under `make test` (gcc). These helpers draw last to first, the
-// order gcc used, so the data the tests' expectations were measured on stays the same.
+// order gcc uses, so the data the tests' expectations are measured on is the same everywhere.
 #include <array>
 #include <cstddef>
 

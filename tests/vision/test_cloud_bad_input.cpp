@@ -146,7 +146,7 @@ TEST_F(CloudBadInput, HeaderClaimingBillionsOfPointsDoesNotAllocateGigabytes) {
 
 TEST_F(CloudBadInput, PcdHeadersThatCrashPclAreRefusedFirst) {
   // PCL 1.13's PCDReader segfaults on each of these (found by fuzz_cloud); load_cloud reads PCD
-  // itself now, and its reader names the header's mistake.
+  // itself, and its reader names the header's mistake.
   const std::string good = pcd_header("1", "1", "ascii") + "1 2 3\n";
   const auto no_size = write("no_size.pcd", std::string(good).replace(good.find("SIZE"), 4, ",IZE"));
   const auto binary_line = write("binary_line.pcd", std::string(good).insert(good.find("VERSION"), std::string("\0\0HB\0\n", 6)));
@@ -160,8 +160,8 @@ TEST_F(CloudBadInput, PcdHeadersThatCrashPclAreRefusedFirst) {
 }
 
 TEST_F(CloudBadInput, BinaryPcdWithHeaderLikeBytesInItsDataIsReadAsItsHeaderSays) {
-  // fuzz_cloud (CI, 2026-12-01): a binary PCD of 64 points with normals whose data begins with
-  // "COLUMNS"; PCL's PCDReader took that for a header line, and fromPCLPointCloud2 read past
+  // Found by fuzz_cloud: a binary PCD of 64 points with normals whose data begins with
+  // "COLUMNS"; PCL's PCDReader takes that for a header line, and fromPCLPointCloud2 reads past
   // the end of the buffer (AddressSanitizer: heap-buffer-overflow). Fettle's reader takes the
   // header at its word: the data starts after the DATA line and holds the 64 points.
   const fs::path reproducer = fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud/pcd-header-lies-about-data-size";
@@ -179,8 +179,8 @@ TEST_F(CloudBadInput, BinaryPcdWithHeaderLikeBytesInItsDataIsReadAsItsHeaderSays
 }
 
 TEST_F(CloudBadInput, PcdDataLineWithoutItsValueIsAUserError) {
-  // PCL 1.13's PCDReader threw std::out_of_range on a DATA line without its value: it
-  // terminated the program (found by fuzz_cloud; reproducer in tests/fuzz/regressions/cloud).
+  // PCL 1.13's PCDReader throws std::out_of_range on a DATA line without its value: it
+  // terminates the program (found by fuzz_cloud; reproducer in tests/fuzz/regressions/cloud).
   const fs::path reproducer = fs::path(FETTLE_SOURCE_DIR) / "tests/fuzz/regressions/cloud/pcd-data-line-without-value";
   ASSERT_TRUE(fs::exists(reproducer)) << reproducer;
   std::ifstream in(reproducer, std::ios::binary);
@@ -190,8 +190,8 @@ TEST_F(CloudBadInput, PcdDataLineWithoutItsValueIsAUserError) {
 }
 
 TEST_F(CloudBadInput, PlyHeaderLinesPclWouldMisreadAreRefused) {
-  // fuzz_cloud (2026-12-01): "element vertex -5" made PCL's PLYReader allocate 36 GB (-5 read
-  // as 2^32 - 5), an obj_info line tripped an assertion in it. Fettle reads PLY itself now:
+  // Found by fuzz_cloud: "element vertex -5" makes PCL's PLYReader allocate 36 GB (-5 read as
+  // 2^32 - 5), an obj_info line trips an assertion in it. Fettle reads PLY itself:
   // every header line must be one PLY has, with values of the right kind.
   const std::string good = ply_header("binary_little_endian", "1") + floats({1, 2, 3});
   auto with = [&](const std::string& from, const std::string& to) { return std::string(good).replace(good.find(from), from.size(), to); };

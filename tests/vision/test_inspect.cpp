@@ -299,7 +299,7 @@ TEST(Excess, ABumpOnAPlaneHasItsVolumeAndHeight) {
 
 // A scan voxelized in its own frame has the template's pitch but not its grid, and the voxels
 // on the rim average the top with the floor around it. Counting the template patches that own
-// a material point measured this disc 3 % large (the simulator's riser scans 2-10 % small);
+// a material point measures this disc 3 % large (the simulator's riser scans 2-10 % small);
 // resampling the nearest scan point onto each patch measures it within 1 %.
 TEST(Excess, ADiscSampledOnAnotherGridHasItsWholeFootprint) {
   const auto t = flat_template();

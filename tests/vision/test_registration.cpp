@@ -425,7 +425,7 @@ TEST(FineSettings, ADirectionTheSurfaceHardlyFixesKeepsTheInitialPose) {
   PrepareSettings ps;
   ps.features = false;
   // Only a 0.05 mm hump says where the plate is sideways (and nothing how it is turned about
-  // z). The scene's hump sits 1 mm further along x: a weak pull, as a boss's flash turned the
+  // z). The scene's hump sits 1 mm further along x: a weak pull, as a boss's flash turns the
   // boss about its axis.
   const auto templ = PreparedCloud::prepare(humped_plate(0.05, 0.0), ps);
   const Cloud scene = humped_plate(0.05, 1.0);

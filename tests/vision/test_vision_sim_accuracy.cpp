@@ -33,17 +33,14 @@
 // FETTLE_ACCURACY_VIEWS2=<slide mm>: a second view at this slide position, both inspected as
 // fettled does with two photo positions: organized, at the slide's poses refined on the
 // overlap (register_views). FETTLE_ACCURACY_UNORGANIZED=1: the view(s) through the unorganized
-// path instead (two views: fuse_views first, as fettled did before). 2026-12-03, 8 seeds,
-// region medians: one view organized 0.034-0.047 mm; the same view unorganized
-// 0.047-0.088; two views (second at 120 mm) fused 0.043-0.092: the unorganized path (voxel
-// grid, then k-nearest outlier removal on the voxels) costs the accuracy, not the fusion
-// (docs/vision.md "Not done yet").
+// path instead (two views: fuse_views first). The unorganized path (voxel grid, then k-nearest
+// outlier removal on the voxels) costs accuracy, the fusion does not (figures in
+// docs/vision.md, "Not done yet").
 //
-// Run by ctest on 50 seeds (8 under the sanitizers; tests/vision/CMakeLists.txt). It passes
-// since the whole part's last ICP also measures the scan's occluding edges (2026-12-03, 50
-// seeds: worst region 0.042 mm / 0.018 degrees, medians 0.020-0.027 mm / 0.003 degrees; riser
-// excess volume within 2.4 %). Before, the worst was 0.17 mm (the whole part's yaw times the
-// lever arm to the riser; see docs/vision.md, "Occluding edges").
+// Run by ctest on 50 seeds (8 under the sanitizers; tests/vision/CMakeLists.txt). The worst
+// case is met because the whole part's last ICP also measures the scan's occluding edges:
+// without them the whole part's yaw, times the lever arm to the riser, puts the riser up to
+// 0.17 mm off (docs/vision.md, "Occluding edges"; the latest figures in docs/results.md).
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -345,9 +342,9 @@ TEST(VisionSimAccuracy, SeededCastingsArePlacedWithin50MicronsAndFiveHundredthsO
 }
 
 // The boss is a cylinder on the tilted face: turning about the face's normal moves almost
-// none of its surface, and its own ICP turned it 0.16, 0.21 and 0.19 deg on these seeds
-// (pulled by its flash) while the whole part's pose was within 0.01 deg. It now keeps the
-// whole part's turn in that direction (FineSettings::degenerate_ratio) and fixes the rest.
+// none of its surface, and its own ICP, free to turn, is pulled 0.16-0.21 deg about it by its
+// flash on these seeds while the whole part's pose is within 0.01 deg. It keeps the whole
+// part's turn in that direction (FineSettings::degenerate_ratio) and fixes the rest.
 TEST(VisionSimAccuracy, TheBossKeepsThePartsTurnAboutItsAxis) {
   auto recipe = accuracy_recipe();
   const auto templ = golden_template(recipe);
@@ -375,8 +372,8 @@ TEST(VisionSimAccuracy, TheBossKeepsThePartsTurnAboutItsAxis) {
 
 // The cell's two photo positions (slide at 0 and 120 mm), as fettled's pipeline takes them:
 // the second view's calibrated pose is refined on the overlap. The simulator's flying pixels
-// beside the part's edges differ between the two viewpoints; registered with them, seed 1's
-// second view came out 0.05 mm off along the slide (0.04-0.08 on 8 seeds), without them 0.007.
+// beside the part's edges differ between the two viewpoints; registered with them, the second
+// view comes out about 0.05 mm off along the slide, without them under 0.01 mm (printed below).
 TEST(MultiView, OrganizedViewsRegisterOnTheirOverlapWithoutTheirFlyingPixels) {
   const auto recipe = accuracy_recipe();
   const fettle::sim::Scanner scanner{fettle::sim::ScannerConfig{}};
@@ -409,8 +406,8 @@ TEST(MultiView, OrganizedViewsRegisterOnTheirOverlapWithoutTheirFlyingPixels) {
 }
 
 // Both views into one voxel grid: every region within 0.05 mm / 0.05 deg on seeds 1 and 5 (on
-// 5, fusing the two views first and inspecting the unorganized cloud placed the part 0.09 mm
-// off at the boss). 2026-12-03: 0.017-0.037 mm, 0.004-0.008 deg.
+// 5, fusing the two views first and inspecting the unorganized cloud places the part 0.09 mm
+// off at the boss).
 TEST(MultiView, TwoOrganizedViewsPlaceThePartWithin50Microns) {
   const auto recipe = accuracy_recipe();
   const auto templ = golden_template(recipe);

@@ -77,9 +77,10 @@ ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_
   //    along the normal onto the template (its foot), is material, and then the patch's height
   //    is that point's: nearest-neighbour resampling of the scan onto the template's patches.
   //    Counting only the patches that have a material point of their own (and filling holes
-  //    inside) lost the rim: a scan voxelized in the fixture frame, at the template's pitch but
+  //    inside) loses the rim: a scan voxelized in the fixture frame, at the template's pitch but
   //    not on its grid, leaves patches without a point of their own, and along the rim they
-  //    could not be told from outside; a riser's footprint came out 2-10 % small.
+  //    cannot be told from outside; a riser's footprint comes out 2-10 % small (test
+  //    Excess.ADiscSampledOnAnotherGridHasItsWholeFootprint).
   std::vector<char> material(scene_in_template.size(), 0);
   for (const auto& c : clusters)
     for (const auto idx : c.indices) {

@@ -34,18 +34,19 @@ constexpr double kMaterialNeighbourhoodMm = 1.5;
 /// A region's own ICP takes no step along directions its surfaces do not fix
 /// (FineSettings::degenerate_ratio). The boss, a cylinder on an 8-degree face: turning about
 /// the face's normal has 5e-5 or less of the largest curvature, its sideways slides 1.8e-4 or
-/// more (simulator, 50 seeds); its own fit turned 0.09 deg (median, worst 0.25) about it,
-/// pulled by its flash; kept at the whole part's turn, 0.019 deg (worst 0.081).
+/// more (simulator, 50 seeds); free to turn about it, its own fit is pulled 0.09 deg (median,
+/// worst 0.25) by its flash; kept at the whole part's turn, 0.019 deg (worst 0.081; test
+/// VisionSimAccuracy.TheBossKeepsThePartsTurnAboutItsAxis).
 constexpr double kDegenerateRatio = 1e-4;
 /// The whole part's ICP takes only heights from faces flatter than this
 /// (FineSettings::heights_only_slope_deg). Simulator, 16 seeds, with the castings' form
-/// deviation: 4 degrees (below the pump body's 8-degree face) turned the part 0.12 degrees
-/// about z (median); 10-40 degrees 0.05-0.06; 60 let the worst region slide 0.18 mm
-/// without form deviation against 0.15-0.17.
+/// deviation (test VisionSimAccuracy, FETTLE_ACCURACY_FORM=1): 4 degrees (below the pump
+/// body's 8-degree face) turns the part 0.12 degrees about z (median); 10-40 degrees
+/// 0.05-0.06; 60 lets the worst region slide 0.18 mm without form deviation against 0.15-0.17.
 constexpr double kHeightsOnlySlopeDeg = 40.0;
 /// The last ICP uses every 8th scene point on those faces after its first iteration: the
-/// vision stage on seed 1 took 0.92 s with all of them, 0.49 s so, and 16 seeds' errors were
-/// the same or smaller (FineSettings::flat_sample).
+/// vision stage takes about half the time (bench_vision: 0.92 s with all of them, 0.49 s so)
+/// and the errors are the same or smaller (test VisionSimAccuracy; FineSettings::flat_sample).
 constexpr int kFlatSample = 8;
 
 /// Occluding edges (organized views only): where a face's pixels end at a range jump of more
@@ -405,14 +406,14 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     rfs.max_distance = 2.0;
     // Material is trimmed as in the whole part's ICP (points more than 0.3 mm outside, and
     // their 1.5 mm neighbourhood): with Tukey weights instead, the boss's flash (a ring with
-    // gaps) pulled its fit 0.16 mm sideways (median, 50 seeds); trimmed, 0.034 mm on 16 seeds
+    // gaps) pulls its fit 0.16 mm sideways (median, 50 seeds); trimmed, 0.034 mm on 16 seeds
     // (Tukey and trimming together: 0.056 mm).
     rfs.trim_outside_mm = kTrimOutsideMm;
     rfs.trim_neighbourhood_mm = kMaterialNeighbourhoodMm;
     rfs.degenerate_ratio = kDegenerateRatio;
     // The region's fitness counts the template surface the camera could see: not walls facing
-    // away from it, and for a riser not the pad under it (the riser region's fitness was
-    // 0.51-0.59 on 7 of 8 simulated castings at a good pose when they counted as misses). Only
+    // away from it, and for a riser not the pad under it (counted as misses, they hold the
+    // riser region's fitness at a good pose to 0.51-0.59 on most simulated castings). Only
     // risers: leaving covered points out can raise a wrong (sunk) pose's fitness up to twice
     // its share of matched points, and a flash covers too little of its template to need it.
     rfs.viewpoint = viewpoint;

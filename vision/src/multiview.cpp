@@ -30,7 +30,7 @@ Result<ViewPoses> chain_views(const std::vector<View>& views, const FuseSettings
                                         " mm, ICP voxel " + std::to_string(settings.icp_voxel_mm) + " mm)"};
   // Every view is voxelized before anything else: the output is voxel_mm anyway, and the
   // pairwise ICP needs no more than icp_voxel_mm (preparing a whole 3.2 MP view for ICP,
-  // normals of 3 M points, took 55 s for two views).
+  // normals of 3 M points, takes 55 s for two views).
   ViewPoses out;
   out.T_first_view.push_back(Transform::Identity());
   Cloud first = downsampled(views.front().cloud, settings.voxel_mm);

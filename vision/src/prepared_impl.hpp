@@ -32,8 +32,8 @@ struct PreparedCloud::Impl {
   /// spacings whose normal turns more than 45 degrees from its own (-1: none), and whether
   /// the edge between them is convex. ICP measures a scene point against both tangent planes
   /// there (edge_residual). Found by find_edges(), once, when first needed: most prepared
-  /// clouds (the scene's coarse cloud, fused views, `fettle locate`) never are (the vision
-  /// stage on seed 1 took 0.479 s when every prepared cloud searched its edges, 0.446 s so).
+  /// clouds (the scene's coarse cloud, fused views, `fettle locate`) never are (bench_vision:
+  /// 0.479 s when every prepared cloud searches its edges, 0.446 s so).
   mutable std::vector<int> edge_partner;
   mutable std::vector<std::uint8_t> edge_convex;
   mutable std::once_flag edges_found;

@@ -54,7 +54,7 @@ struct HandEyeResiduals {
 struct CalibrationFile {
   std::filesystem::path source;  ///< where it was read from (empty if built in memory)
   std::string id;                ///< identity, copied into every cycle report
-  std::string date;              ///< when it was made, ISO 8601 UTC ("2026-11-22T04:30:00Z")
+  std::string date;              ///< when it was made, ISO 8601 UTC ("YYYY-MM-DDThh:mm:ssZ" or the date alone)
   std::string note;              ///< free text
   std::optional<CameraIntrinsics> intrinsics;
   std::optional<Transform> T_base_camera;       ///< camera points -> robot base frame (mm)
@@ -72,7 +72,7 @@ struct CalibrationIdentity {
   std::string date;
   std::string sha256;          ///< of the file's bytes as loaded (empty: built in memory, never read)
   std::filesystem::path file;  ///< where it was read from (empty: built in memory)
-  /// One line for logs and reports: `id (date) sha256:0123456789ab file`.
+  /// One line for logs and reports: `id (date) sha256:<first 12 hex digits> file`.
   std::string to_string() const;
 };
 
@@ -98,7 +98,7 @@ std::vector<Diagnostic> check_calibration(const std::filesystem::path& file);
 std::string to_toml(const CalibrationFile& calibration);
 /// Writes a calibration file atomically; throws UserError if it cannot be written.
 void write_calibration(const std::filesystem::path& file, const CalibrationFile& calibration);
-/// The current UTC time as ISO 8601, e.g. "2026-11-22T04:30:00Z".
+/// The current UTC time as ISO 8601, "YYYY-MM-DDThh:mm:ssZ".
 std::string utc_now_iso8601();
 
 }  // namespace fettle::config

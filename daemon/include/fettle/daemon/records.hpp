@@ -105,7 +105,7 @@ class Records {
   std::deque<std::string> pending_;  ///< journal lines not yet on disk (disk full), oldest first
 };
 
-/// UTC now as "2026-11-30T09:15:02.123Z".
+/// UTC now as ISO 8601 with milliseconds, "YYYY-MM-DDThh:mm:ss.mmmZ".
 std::string utc_now_iso();
 
 }  // namespace fettle::daemon

@@ -27,8 +27,9 @@ struct FuseSettings {
   double min_fitness = 0.2;        ///< a pairwise refinement below this keeps the calibration guess
   /// Organized views only (register_views on OrganizedView): the pairwise ICP leaves out pixels
   /// beside a depth jump above this (flying pixels, remove_jump_edges). They differ between
-  /// viewpoints: with them, the simulator's second view at 120 mm came out 0.04-0.08 mm off
-  /// along the slide on 8 of 8 seeds; without them 0.01-0.02 mm.
+  /// viewpoints: with them, the simulator's second view at 120 mm comes out 0.04-0.08 mm off
+  /// along the slide; without them 0.01-0.02 mm (test
+  /// MultiView.OrganizedViewsRegisterOnTheirOverlapWithoutTheirFlyingPixels).
   double jump_edge_mm = 4.0;
 };
 

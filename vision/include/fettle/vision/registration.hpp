@@ -123,7 +123,7 @@ struct FineSettings {
   /// of +z, the template's up) fixes only height, roll and pitch: its residual is the
   /// vertical distance to its tangent plane. A camera above a casting measures such faces'
   /// heights well, but their slope turns any height deviation into a sideways one (0.1 mm on
-  /// a 5-degree slope reads as 1.1 mm): with the casting's form deviation they turned the
+  /// a 5-degree slope reads as 1.1 mm): with the casting's form deviation they turn the
   /// whole part 0.1-0.2 degrees about z (simulator, ideal fit on 4 seeds), while the walls and
   /// edges that really fix it sideways are a few hundred points against their ten thousand.
   double heights_only_slope_deg = 0.0;
@@ -146,7 +146,7 @@ struct FineSettings {
   /// share of the largest gets no step (Zhang et al., "On degeneration of optimization-based
   /// state estimation problems", ICRA 2016: solution remapping). A boss is a cylinder on a
   /// face: turning about its axis moves none of its surface, so only noise and its flash's
-  /// gaps turned it (0.1-0.25 deg from the whole part's pose).
+  /// gaps turn it (0.1-0.25 deg from the whole part's pose).
   double degenerate_ratio = 0.0;
   double max_view_angle_deg = 75.0;
   double covered_mm = 0.0;
