@@ -182,8 +182,8 @@ TEST_F(Pipeline, PlansEveryRegionOfASimulatedCastingAndValidates) {
 
 TEST_F(Pipeline, AMirroredCastingIsTheWrongPartAndIsNotPlanned) {
   // The other hand of a left/right pair: the same features, mirrored. Its whole-part fitness
-  // was 0.34-0.36 for seeds 1-3 against 0.546-0.550 for the right part (2026-11-30), so
-  // [vision] min_part_fitness 0.45 sits between them; nothing is planned on it.
+  // is about 0.35 against 0.55 for the right part, so [vision] min_part_fitness 0.45 sits
+  // between them; nothing is planned on it.
   const sim::Scanner scanner(small_scanner());
   const auto mirrored = sim::mirrored_in_x(loaded_->recipe);
   for (std::uint64_t seed : {1U, 3U}) {
@@ -208,10 +208,8 @@ TEST_F(Pipeline, OnlyTheRequestedRegionsArePlannedForARegrind) {
   EXPECT_NE(bad.error().message.find("no-such-region"), std::string::npos);
 }
 
-// Disabled from 2026-11-30 to 2026-12-02: after the exact grind the riser region read REGRIND
-// (0.40 % of its ROI points 0.5-0.85 mm beyond the riser pad's +x edge). Re-run on 2026-12-02 it
-// passes, also with that day's region-fitness change switched off, so an earlier change to the
-// poses fixed it (most likely the whole-part ICP that ignores material, fa0f4eb).
+// Both ends of the verification: an unground riser is not OK, and an exactly ground casting
+// is OK in every region (the riser's too, whose ROI reaches past the riser pad's +x edge).
 TEST_F(Pipeline, VerifySaysRegrindBeforeGrindingAndOkAfterAnExactGrind) {
   auto casting = sim::Casting::make(loaded_->recipe, 4);
   const sim::Scanner scanner(small_scanner());
@@ -309,10 +307,10 @@ TEST_F(Pipeline, VerifyFindsNoGougeWhereAnExactlyGroundCastingWasGround) {
   EXPECT_EQ(r->verdict, Verdict::ok);
 }
 
-// The verification drops the re-scan's flying pixels (verification.jump_edge_mm): on casting 5,
-// ground exactly, those beside the boss's wall (its rim 5-9 mm above the tilted face) read as
-// material 0.4-1.9 mm off the template and the boss REGRIND (2026-12-03: 44 of 50 castings of
-// `make accuracy`). Full resolution: the flying pixels are a share of the boundary pixels.
+// The verification drops the re-scan's flying pixels (verification.jump_edge_mm): on this
+// casting, ground exactly, those beside the boss's wall (its rim 5-9 mm above the tilted face)
+// read as material 0.4-1.9 mm off the template: unfiltered, the boss reads REGRIND. Full
+// resolution: the flying pixels are a share of the boundary pixels.
 TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
   auto casting = sim::Casting::make(loaded_->recipe, 5);
   casting.remove_all_material();
@@ -336,9 +334,9 @@ TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
   EXPECT_GT(boss_without->share_over_0_5_pct, boss_with->share_over_0_5_pct);
 }
 
-// A region whose ROI the verification scan does not see is not judged OK on no points: the
-// flange's box before 2026-12-03 (z 40-60 mm, the wall below the flange top, seen edge-on from
-// above) held 0-2 points after grinding and read OK.
+// A region whose ROI the verification scan does not see is not judged OK on no points: a
+// flange box at z 40-60 mm (the wall below the flange top, seen edge-on from above) holds 0-2
+// points after grinding and reads NOK, "cannot be verified".
 TEST_F(Pipeline, VerifyCallsARegionTheScanDoesNotSeeNokNotOk) {
   LoadedRecipe loaded = *loaded_;
   auto flange = std::find_if(loaded.recipe.regions.begin(), loaded.recipe.regions.end(),

@@ -633,7 +633,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
     publish_state();
     if (!plc_up) co_return fail(c, Fault{FaultCode::plc_link_lost, "the PLC link is down", c.step});
     // A slide already in fault sends no new state when commanded: without this the cycle would
-    // wait out travel_timeout_ms and report a timeout (found by the soak).
+    // wait out travel_timeout_ms and report a timeout (test Fettled.B_EveryFaultEndsInItsStateAndTheCellRecovers,
+    // "slide faulted before the cycle").
     if (slide.status == plc::SlideStatus::fault)
       co_return fail(c, Fault{FaultCode::slide_fault, "the PLC reports a slide fault (before the slide was commanded)", c.step});
     auto p = std::make_shared<Pending<Status>>(io);
@@ -737,8 +738,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
 
   // GCC 12 destroys a temporary with a non-trivial destructor in a co_await expression twice:
   // a lambda capturing shared_ptrs and ProcessOptions by value, passed straight into
-  // await_op, double-freed the region names at the first re-grind (core dump, 2026-11-30) and
-  // can drop the views' refcount early (likely the earlier segfault in vision::to_cloud).
+  // await_op, double-frees the region names at the first re-grind and can drop the views'
+  // refcount early.
   // Everything non-trivial handed to await_op is therefore a named local of this frame.
   /// Vision + planning in the worker pool. With `part_error`, an error about the part itself
   /// (vision.* or planning.*: it cannot be located or planned) is returned there instead of
@@ -963,10 +964,10 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   }
 
   /// The files a cycle's processing made for its record (trajectory, preview, fused cloud),
-  /// written on a thread of their own: rendering and writing them took 0.1-0.2 s under ASan on
+  /// written on a thread of their own: rendering and writing them takes 0.1-0.2 s under ASan on
   /// an idle machine, and the event loop, which serves every device link's heartbeat, must not
-  /// wait for a busy disk. One thread, not the worker pool: each worker's malloc arena took
-  /// the files' memory peak once, and fettled's RSS stepped up 50 MB at the 10th cycle of a soak.
+  /// wait for a busy disk. One thread, not the worker pool: each worker's malloc arena would
+  /// take the files' memory peak once, and fettled's RSS would step up 50 MB over a soak.
   /// The writer gets its own copy of what it writes: nothing of the cycle is shared.
   asio::awaitable<void> write_process_outputs(Cycle& c, const ProcessOutput& out, const char* prefix_text) {
     struct Written {
