@@ -1,5 +1,5 @@
 // Planning time on the standard scan: the simulator's castings (default 2064 x 1544 scanner,
-// the cell's photo positions) through the daemon's pipeline (fettle::daemon::process: fuse,
+// the cell's photo positions) through the daemon's pipeline (fettle::process::process: fuse,
 // vision, plan, validate), then the planning stage alone (plan every region, order, assemble,
 // validate) repeated on the vision output to take its median. Target (issue 5): planning all
 // regions <= 100 ms. Prints per seed and region the excess points, trajectory points and plan
@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "fettle/config/load.hpp"
-#include "fettle/daemon/pipeline.hpp"
+#include "fettle/process/pipeline.hpp"
 #include "fettle/planning/planner.hpp"
 #include "fettle/sim/sim.hpp"
 
@@ -26,7 +26,7 @@ int main(int argc, char** argv) {
   auto recipe = config::load_part(part);
   recipe.vision.cache = false;
   const auto cell = config::load_cell(cell_file);
-  daemon::LoadOptions lo;
+  process::LoadOptions lo;
   vision::Cloud golden;
   for (const auto& s : sim::Casting::golden(recipe, 0).sample_golden_surface(0.5)) {
     golden.points.push_back(s.position_mm);
@@ -36,7 +36,7 @@ int main(int argc, char** argv) {
   // the signed-distance grid is built once (about a minute on 2 cores) and cached, keyed by
   // the golden samples' hash; planning is measured on it either way
   lo.sdf_cache_dir = std::filesystem::temp_directory_path() / "fettle-bench-planning-cache";
-  const auto loaded = daemon::load_recipe(recipe, lo);
+  const auto loaded = process::load_recipe(recipe, lo);
   sim::ScannerConfig sc;
   sc.photo_positions_mm = cell.slide.photo_positions_mm;
   const sim::Scanner scanner(sc);
@@ -46,9 +46,9 @@ int main(int argc, char** argv) {
   std::vector<double> medians;
   for (int seed = 1; seed <= seeds; ++seed) {
     const auto casting = sim::Casting::make(recipe, static_cast<std::uint64_t>(seed));
-    std::vector<daemon::View> views;
+    std::vector<process::View> views;
     for (const auto& c : scanner.capture_all(casting)) views.push_back({c.cloud, c.truth.T_base_camera, c.truth.slide_position_mm});
-    const auto out = daemon::process(loaded, cell, views);
+    const auto out = process::process(loaded, cell, views);
     if (!out) {
       std::printf("%-6d %-20s %8s %8s %10s  %s\n", seed, "all", "", "", "", out.error().message.c_str());
       ++failures;

@@ -1,5 +1,5 @@
 // fettle plan --part part.toml --scan SCAN --calib CALIB --out DIR: the daemon's processing
-// pipeline (fettle::daemon::process: locate, extract, plan, validate) on one scan file.
+// pipeline (fettle::process::process: locate, extract, plan, validate) on one scan file.
 // The scan is in the camera frame (mm; PLY or PCD, e.g. a view written by `fettle-sim scan`),
 // CALIB the calibration file whose T_base_camera maps it into the robot base frame.
 // Writes DIR/trajectory.json, DIR/trajectory.csv, DIR/preview.png and DIR/report.json.
@@ -14,7 +14,7 @@
 #include "fettle/config/load.hpp"
 #include "fettle/core/atomic_file.hpp"
 #include "fettle/core/cli.hpp"
-#include "fettle/daemon/pipeline.hpp"
+#include "fettle/process/pipeline.hpp"
 #include "fettle/vision/cloud.hpp"
 
 namespace {
@@ -33,24 +33,24 @@ int plan(const Args& a) {
     throw fettle::UserError(a.calib.string() + ": has no [T_base_camera]; run `fettle calibrate hand-eye` first");
   fettle::config::CellConfig cell;
   if (!a.cell.empty()) cell = fettle::config::load_cell(a.cell);
-  fettle::daemon::LoadOptions lo;
+  fettle::process::LoadOptions lo;
   if (!a.golden.empty()) {
     lo.golden = fettle::vision::load_cloud(a.golden);
     lo.golden_identity = fs::absolute(a.golden).string() + " " + std::to_string(fs::file_size(a.golden));
   }
-  const auto loaded = fettle::daemon::load_recipe(recipe, lo);
+  const auto loaded = fettle::process::load_recipe(recipe, lo);
   std::cerr << "recipe " << recipe.id << ": template " << loaded.templ.whole().fine().size() << " points"
             << (loaded.template_from_cache ? " (from cache)" : " (built)") << ", " << loaded.load_ms << " ms\n";
 
   const auto scan = fettle::vision::load_cloud(a.scan);
   fettle::vision::require_millimetres(scan, a.scan.string());
-  fettle::daemon::View view;
+  fettle::process::View view;
   view.cloud.width = static_cast<std::uint32_t>(scan.size());
   view.cloud.height = 1;
   view.cloud.points = scan.points;
   view.T_base_camera = *calibration.T_base_camera;
   view.slide_position_mm = a.slide_position_mm;
-  const auto out = fettle::daemon::process(loaded, cell, {view}, [](std::size_t done, std::size_t total, const std::string& step) {
+  const auto out = fettle::process::process(loaded, cell, {view}, [](std::size_t done, std::size_t total, const std::string& step) {
     std::fprintf(stderr, "[%zu/%zu] %s\n", done, total, step.c_str());
   });
   if (!out) throw fettle::UserError(a.scan.string() + ": " + out.error().message + " [" + out.error().code + "]");
@@ -58,7 +58,7 @@ int plan(const Args& a) {
   std::error_code ec;
   fs::create_directories(a.out, ec);
   if (ec) throw fettle::UserError(a.out.string() + ": cannot create the output directory: " + ec.message());
-  if (auto st = fettle::daemon::write_outputs(a.out, *out); !st) throw fettle::UserError(st.error().message);
+  if (auto st = fettle::process::write_outputs(a.out, *out); !st) throw fettle::UserError(st.error().message);
   nlohmann::ordered_json report;
   report["part_id"] = recipe.id;
   report["scan"] = a.scan.string();

@@ -53,7 +53,7 @@
 #include "fettle/core/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
-#include "fettle/daemon/pipeline.hpp"
+#include "fettle/process/pipeline.hpp"
 #include "fettle/drivers/packml.hpp"
 #include "fettle/drivers/plc_registers.hpp"
 #include "fettle/sim/cell.hpp"
@@ -345,10 +345,10 @@ class Soak {
     const fs::path shipped_part = shipped.cell.recipes.front().file;
     const fs::path part = a_.out / "parts" / shipped_part.filename();
     fs::copy_file(shipped_part, part, fs::copy_options::overwrite_existing);
-    const fs::path cache = fettle::daemon::planning_cache_dir(part);
-    for (const fs::path& from : {a_.planning_cache, fettle::daemon::planning_cache_dir(shipped_part)}) {
-      if (fs::exists(fettle::daemon::sdf_grid_file(cache))) break;
-      if (from.empty() || !fs::exists(fettle::daemon::sdf_grid_file(from))) continue;
+    const fs::path cache = fettle::process::planning_cache_dir(part);
+    for (const fs::path& from : {a_.planning_cache, fettle::process::planning_cache_dir(shipped_part)}) {
+      if (fs::exists(fettle::process::sdf_grid_file(cache))) break;
+      if (from.empty() || !fs::exists(fettle::process::sdf_grid_file(from))) continue;
       fs::remove_all(cache);
       fs::copy(from, cache, fs::copy_options::recursive);
       std::printf("soak: planner's grid copied from %s\n", from.c_str());

@@ -1,5 +1,5 @@
 // fettle-sim trial --part FILE --seeds A-B --out DIR: the closed loop on simulated castings.
-// Per seed: scan -> locate -> extract -> plan (fettle::daemon::process, the daemon's own
+// Per seed: scan -> locate -> extract -> plan (fettle::process::process, the daemon's own
 // pipeline) -> simulated grinding (each region with its tool) -> re-scan -> verify (the
 // daemon's verdict) -> evaluate against the ground truth (Zhu et al. 2022, section 4).
 // Writes DIR/seed-<n>/{evaluation.json, template.ply, roi_<region>.ply, trajectory.json},
@@ -8,7 +8,7 @@
 //
 // fettle-sim golden --part FILE [--out golden.ply]: the simulator's golden part sampled in the
 // part frame with outward normals: the template file of a recipe with [template] source =
-// "simulator" (fettle::daemon::golden_path tells where the daemon looks for it).
+// "simulator" (fettle::process::golden_path tells where the daemon looks for it).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -27,7 +27,7 @@
 #include "fettle/core/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
-#include "fettle/daemon/pipeline.hpp"
+#include "fettle/process/pipeline.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/preprocess.hpp"
 #include "sim_common.hpp"
@@ -96,8 +96,8 @@ fettle::vision::Cloud golden_cloud(const fettle::config::PartRecipe& recipe, dou
   return c;
 }
 
-std::vector<fettle::daemon::View> to_views(const std::vector<Capture>& captures) {
-  std::vector<fettle::daemon::View> views;
+std::vector<fettle::process::View> to_views(const std::vector<Capture>& captures) {
+  std::vector<fettle::process::View> views;
   for (const auto& c : captures) views.push_back({c.cloud, c.truth.T_base_camera, c.truth.slide_position_mm});
   return views;
 }
@@ -286,10 +286,10 @@ int trial(const Args& a) {
   if (ec) throw fettle::UserError(a.out.string() + ": cannot create the output directory: " + ec.message());
 
   auto t0 = std::chrono::steady_clock::now();
-  fettle::daemon::LoadOptions lo;
+  fettle::process::LoadOptions lo;
   lo.golden = golden_cloud(recipe, a.golden_spacing_mm);
   lo.golden_identity = "fettle-sim golden " + recipe.id + " spacing " + std::to_string(a.golden_spacing_mm);
-  const auto loaded = fettle::daemon::load_recipe(recipe, lo);
+  const auto loaded = fettle::process::load_recipe(recipe, lo);
   std::fprintf(stderr, "recipe %s loaded in %.1f s (template %zu points%s)\n", recipe.id.c_str(),
                app::seconds_since(t0), loaded.templ.whole().fine().size(), loaded.template_from_cache ? ", cached" : "");
   const auto golden_samples = Casting::golden(recipe, 0).sample_golden_surface(a.golden_spacing_mm);
@@ -321,7 +321,7 @@ int trial(const Args& a) {
     Casting body = casting;  // the casting without its material: where the planner should put each region
     body.remove_all_material();
     const auto captures = scan_all(scanner, casting, 0);
-    auto out = fettle::daemon::process(loaded, cell, to_views(captures),
+    auto out = fettle::process::process(loaded, cell, to_views(captures),
                                        [](std::size_t, std::size_t, const std::string& step) {
                                          if (step != "done") std::fprintf(stderr, ", %s", step.c_str());
                                        });
@@ -371,7 +371,7 @@ int trial(const Args& a) {
     std::fprintf(stderr, ", re-scan");
     const auto rescan = scan_all(scanner, casting, 100);
     std::fprintf(stderr, ", verify");
-    const auto ver = fettle::daemon::verify(loaded, cell, to_views(rescan), {out->trajectory});
+    const auto ver = fettle::process::verify(loaded, cell, to_views(rescan), {out->trajectory});
     std::fprintf(stderr, ", evaluate");
     const auto pts = eval_points(recipe, rescan);
     const auto golden_distance = [&](const fettle::Vec3& p) { return casting.distance_to_golden_mm(p); };
@@ -383,7 +383,7 @@ int trial(const Args& a) {
     json tj = json::object();
     for (const auto& st : out->timings) tj[st.step + "_ms"] = st.ms;
     sj["timings"] = tj;
-    sj["verdict"] = ver ? fettle::daemon::to_string(ver->verdict) : "error";
+    sj["verdict"] = ver ? fettle::process::to_string(ver->verdict) : "error";
     if (!ver) sj["verify_error"] = ver.error().message;
     if (ver) {
       json vg = nullptr;
@@ -489,7 +489,7 @@ int trial(const Args& a) {
       if (ver)
         for (const auto& v : ver->regions)
           if (v.name == region.name)
-            rj["verify"] = {{"verdict", fettle::daemon::to_string(v.verdict)},
+            rj["verify"] = {{"verdict", fettle::process::to_string(v.verdict)},
                             {"reason", v.reason},
                             {"roi_points", v.roi_points},
                             {"share_over_0_3_pct", v.share_over_0_3_pct},
@@ -503,11 +503,11 @@ int trial(const Args& a) {
     }
     max_gouge = std::max(max_gouge, seed_gouge);
     seed_gouges.push_back(seed_gouge);
-    ++verdicts[ver ? fettle::daemon::to_string(ver->verdict) : "error"];
+    ++verdicts[ver ? fettle::process::to_string(ver->verdict) : "error"];
     // A casting the simulator says is gouged deeper than the verification's gouge_depth_mm must
     // be NOK in the cell's own verification: an OK there would ship a scrapped casting.
     const bool gouged = seed_gouge > recipe.verification.gouge_depth_mm;
-    const bool missed = gouged && !(ver && ver->verdict == fettle::daemon::Verdict::nok);
+    const bool missed = gouged && !(ver && ver->verdict == fettle::process::Verdict::nok);
     gouged_seeds += gouged ? 1 : 0;
     missed_gouges += missed ? 1 : 0;
     sj["gouge_missed_by_verification"] = missed;
@@ -529,7 +529,7 @@ int trial(const Args& a) {
                  : biased               ? (gouged ? "gouged on purpose, caught" : "not gouged past gouge_depth_mm")
                  : seed_ok && seed_gouge <= kMaxGougeMm ? "ok"
                                                         : "OUT OF TOLERANCE",
-                 ver ? fettle::daemon::to_string(ver->verdict) : "error", vnote.c_str(), pms, seed_gouge,
+                 ver ? fettle::process::to_string(ver->verdict) : "error", vnote.c_str(), pms, seed_gouge,
                  app::seconds_since(ts), left.c_str());
   }
 
@@ -598,7 +598,7 @@ int trial(const Args& a) {
 
 int golden(const fs::path& part, fs::path out, double spacing_mm) {
   const auto recipe = fettle::config::load_part(part);
-  if (out.empty()) out = fettle::daemon::golden_path(recipe);
+  if (out.empty()) out = fettle::process::golden_path(recipe);
   const auto c = golden_cloud(recipe, spacing_mm);
   fettle::vision::save_ply(out, c);
   std::printf("%s: %zu golden surface points with normals (part frame, mm)\n", out.string().c_str(), c.size());

@@ -30,7 +30,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/daemon/packml_machine.hpp"
-#include "fettle/daemon/pipeline.hpp"
+#include "fettle/process/pipeline.hpp"
 #include "fettle/daemon/records.hpp"
 #include "fettle/drivers/camera.hpp"
 #include "fettle/drivers/camera_ply.hpp"
@@ -42,6 +42,13 @@ namespace fettle::daemon {
 
 namespace asio = boost::asio;
 namespace fs = std::filesystem;
+using process::LoadedRecipe;
+using process::ProcessOptions;
+using process::ProcessOutput;
+using process::StepTiming;
+using process::VerificationResult;
+using process::Verdict;
+using process::View;
 namespace plc = drivers::plc;
 using nlohmann::json;
 using packml::Command;
@@ -226,7 +233,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   void setup() {
     for (const auto& r : cell.cell.recipes) {
       log->info("loading recipe {} ({})", r.plc_recipe_id, r.file.string());
-      recipes[r.plc_recipe_id] = std::make_shared<const LoadedRecipe>(load_recipe(r.file));
+      recipes[r.plc_recipe_id] = std::make_shared<const LoadedRecipe>(process::load_recipe(r.file));
     }
     if (!cell.calibration.file.empty()) calibration = config::load_calibration(cell.calibration.file);
     auto interrupted = records.open();
@@ -759,7 +766,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
           asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, po, done] {
             Result<ProcessOutput> out = Error{"pipeline.internal", "not run"};
             try {
-              out = process(*recipe, cell, *views_copy, po);
+              out = process::process(*recipe, cell, *views_copy, po);
             } catch (const std::exception& e) {
               out = Error{"pipeline.internal", e.what()};
             }
@@ -795,7 +802,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
           asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, done] {
             Result<VerificationResult> out = Error{"pipeline.internal", "not run"};
             try {
-              out = verify(*recipe, cell, *views_copy, *ground);
+              out = process::verify(*recipe, cell, *views_copy, *ground);
             } catch (const std::exception& e) {
               out = Error{"pipeline.internal", e.what()};
             }
@@ -982,7 +989,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
         const fs::path tmp = dir / ("." + prefix + "outputs.tmp");
         std::error_code ec;
         fs::create_directories(tmp, ec);
-        if (auto st = write_outputs(tmp, *copy); !st) w.warnings.push_back("outputs: " + st.error().message);
+        if (auto st = process::write_outputs(tmp, *copy); !st) w.warnings.push_back("outputs: " + st.error().message);
         for (fs::directory_iterator it(tmp, ec), end; !ec && it != end; it.increment(ec)) {
           const auto name = prefix + it->path().filename().string();
           fs::rename(it->path(), dir / name, ec);

@@ -42,7 +42,7 @@
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/inspect.hpp"
 
-namespace fettle::daemon {
+namespace fettle::process {
 
 /// Called by long steps: (done, total, what is running now, e.g. "vision", "plan riser").
 using Progress = std::function<void(std::size_t done, std::size_t total, const std::string& step)>;
@@ -230,4 +230,4 @@ Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::Cell
 Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
                                   const std::vector<View>& rescan, const Progress& progress = {});
 
-}  // namespace fettle::daemon
+}  // namespace fettle::process

@@ -1,4 +1,4 @@
-// The processing pipeline (fettle::daemon::process / verify) on the simulator's pump body:
+// The processing pipeline (fettle::process::process / verify) on the simulator's pump body:
 // setup errors, bad views, a full plan of a simulated scan, and the verification verdicts on
 // an unground casting and an exactly ground one (the simulator's oracle grind).
 #include <gtest/gtest.h>
@@ -13,11 +13,11 @@
 
 #include "fettle/config/load.hpp"
 #include "fettle/core/error.hpp"
-#include "fettle/daemon/pipeline.hpp"
+#include "fettle/process/pipeline.hpp"
 #include "fettle/planning/sdf_grid.hpp"
 #include "fettle/sim/sim.hpp"
 
-namespace fettle::daemon {
+namespace fettle::process {
 namespace {
 
 namespace fs = std::filesystem;
@@ -364,4 +364,4 @@ TEST_F(Pipeline, VerifyCallsARegionTheScanDoesNotSeeNokNotOk) {
 
 }  // namespace
 
-}  // namespace fettle::daemon
+}  // namespace fettle::process

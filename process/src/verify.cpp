@@ -1,0 +1,381 @@
+// After grinding (fettle/process/pipeline.hpp): the re-scan of the regions and of the tool's
+// swept footprint against the template -> per-region verdicts and the worst gouge.
+#include "fettle/process/pipeline.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <sstream>
+#include <system_error>
+#include <unordered_map>
+
+#include "fettle/config/load.hpp"
+#include "fettle/config/roi.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/core/log.hpp"
+#include "fettle/planning/sdf_grid.hpp"
+#include "fettle/planning/surface.hpp"
+#include "fettle/vision/multiview.hpp"
+#include "fettle/vision/preprocess.hpp"
+#include "internal.hpp"
+
+namespace fettle::process {
+
+namespace fs = std::filesystem;
+using detail::Clock;
+using detail::ms_since;
+using detail::report;
+using detail::step_error;
+using detail::locate;
+
+const char* to_string(Verdict verdict) {
+  switch (verdict) {
+    case Verdict::ok: return "OK";
+    case Verdict::regrind: return "REGRIND";
+    case Verdict::nok: return "NOK";
+  }
+  return "?";
+}
+
+std::vector<std::string> VerificationResult::regrind_regions() const {
+  std::vector<std::string> names;
+  for (const auto& r : regions)
+    if (r.verdict == Verdict::regrind) names.push_back(r.name);
+  return names;
+}
+
+namespace {
+
+/// Integer cells of a uniform grid of `cell` mm, packed into one key (21 bits an axis).
+struct CellKeys {
+  double cell = 1.0;
+  [[nodiscard]] std::array<std::int64_t, 3> coords(const Vec3& p) const {
+    return {static_cast<std::int64_t>(std::floor(p.x() / cell)), static_cast<std::int64_t>(std::floor(p.y() / cell)),
+            static_cast<std::int64_t>(std::floor(p.z() / cell))};
+  }
+  static std::int64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+    return ((x & 0x1FFFFF) << 42) | ((y & 0x1FFFFF) << 21) | (z & 0x1FFFFF);
+  }
+  [[nodiscard]] std::int64_t key(const Vec3& p) const {
+    const auto c = coords(p);
+    return pack(c[0], c[1], c[2]);
+  }
+};
+
+/// Points of a cloud by cells, for the neighbours of a few candidates.
+class PointCells {
+ public:
+  PointCells(const std::vector<Eigen::Vector3f>& pts, double cell) : pts_(pts), keys_{cell} {
+    for (std::size_t i = 0; i < pts.size(); ++i) cells_[keys_.key(pts[i].cast<double>())].push_back(i);
+  }
+  template <class F>
+  void within(const Vec3& q, double r, F&& f) const {
+    const auto c = keys_.coords(q);
+    const int n = static_cast<int>(std::ceil(r / keys_.cell));
+    for (int dz = -n; dz <= n; ++dz)
+      for (int dy = -n; dy <= n; ++dy)
+        for (int dx = -n; dx <= n; ++dx) {
+          const auto it = cells_.find(CellKeys::pack(c[0] + dx, c[1] + dy, c[2] + dz));
+          if (it == cells_.end()) continue;
+          for (auto i : it->second)
+            if ((pts_[i].cast<double>() - q).squaredNorm() <= r * r) f(i);
+        }
+  }
+
+ private:
+  const std::vector<Eigen::Vector3f>& pts_;
+  CellKeys keys_;
+  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
+};
+
+/// The median signed distance of the points within `radius` of point k (k included): a gouge's
+/// depth as its neighbourhood confirms it. nullopt with fewer than 3 points there (an isolated
+/// point confirms nothing).
+std::optional<double> neighbourhood_median(const PointCells& cells, const std::vector<Eigen::Vector3f>& pts,
+                                           const std::vector<float>& residual, std::size_t k, double radius,
+                                           std::vector<float>& scratch) {
+  scratch.clear();
+  cells.within(pts[k].cast<double>(), radius, [&](std::size_t i) { scratch.push_back(residual[i]); });
+  if (scratch.size() < 3) return std::nullopt;
+  auto mid = scratch.begin() + static_cast<std::ptrdiff_t>(scratch.size() / 2);
+  std::nth_element(scratch.begin(), mid, scratch.end());
+  return static_cast<double>(*mid);
+}
+
+RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs,
+                                std::size_t min_points, std::vector<Eigen::Vector3f> points_part,
+                                std::vector<float> residual_mm) {
+  RegionVerification v;
+  v.name = region.name;
+  v.type = region.type;
+  v.roi_points = points_part.size();
+  std::size_t gouged = 0, too_high = 0;
+  for (const float r : residual_mm) {
+    const double a = std::abs(r);
+    v.over_0_3 += a > 0.3 ? 1 : 0;
+    v.over_0_4 += a > 0.4 ? 1 : 0;
+    v.over_0_5 += a > 0.5 ? 1 : 0;
+    v.max_residual_mm = std::max(v.max_residual_mm, a);
+    v.max_above_mm = std::max(v.max_above_mm, static_cast<double>(r));
+    v.max_below_mm = std::max(v.max_below_mm, static_cast<double>(-r));
+    too_high += r > vs.max_regrind_height_mm ? 1 : 0;
+  }
+  // Gouged points: more than gouge_depth_mm below the template, and so is the median of their
+  // neighbourhood (a single deep point is noise or a mixed pixel at a wall, not a cut).
+  if (std::any_of(residual_mm.begin(), residual_mm.end(), [&](float r) { return -r > vs.gouge_depth_mm; })) {
+    const PointCells cells(points_part, std::max(0.25, vs.gouge_confirm_radius_mm));
+    std::vector<float> scratch;
+    for (std::size_t k = 0; k < residual_mm.size(); ++k) {
+      if (!(-residual_mm[k] > vs.gouge_depth_mm)) continue;
+      const auto m = neighbourhood_median(cells, points_part, residual_mm, k, vs.gouge_confirm_radius_mm, scratch);
+      gouged += m && -*m > vs.gouge_depth_mm ? 1 : 0;
+    }
+  }
+  const double n = static_cast<double>(std::max<std::size_t>(1, v.roi_points));
+  auto pct = [&](std::size_t k) { return 100.0 * static_cast<double>(k) / n; };
+  v.share_over_0_3_pct = pct(v.over_0_3);
+  v.share_over_0_4_pct = pct(v.over_0_4);
+  v.share_over_0_5_pct = pct(v.over_0_5);
+  auto num = [](double x) {
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.3g", x);
+    return std::string(buf);
+  };
+  if (v.roi_points < min_points) {
+    // Nothing to judge is not a pass: a region the verification scan does not see (a wall
+    // seen edge-on from above, a ROI that misses the part) must not be reported as ground.
+    v.verdict = Verdict::nok;
+    v.reason = "cannot be verified: " + std::to_string(v.roi_points) +
+               " points of the verification scan in its ROI (at least " + std::to_string(min_points) +
+               ", vision.min_region_points); check the region's roi_center_mm and roi_size_mm against what the "
+               "camera sees from the slide's photo positions";
+  } else if (pct(gouged) > vs.nok_max_share_gouged_pct) {
+    v.verdict = Verdict::nok;
+    v.reason = num(pct(gouged)) + " % of the ROI points are more than gouge_depth_mm = " + num(vs.gouge_depth_mm) +
+               " mm below the template with their neighbourhood (allowed " + num(vs.nok_max_share_gouged_pct) +
+               " %): gouged";
+  } else if (pct(too_high) > vs.ok_max_share_over_0_5_pct) {
+    v.verdict = Verdict::nok;
+    v.reason = num(pct(too_high)) + " % of the ROI points stand more than max_regrind_height_mm = " +
+               num(vs.max_regrind_height_mm) + " mm above the template: not a grinding leftover";
+  } else if (v.share_over_0_3_pct > vs.ok_max_share_over_0_3_pct || v.share_over_0_5_pct > vs.ok_max_share_over_0_5_pct) {
+    v.verdict = Verdict::regrind;
+    v.reason = num(v.share_over_0_3_pct) + " % of the ROI points > 0.3 mm (allowed " + num(vs.ok_max_share_over_0_3_pct) +
+               " %), " + num(v.share_over_0_5_pct) + " % > 0.5 mm (allowed " + num(vs.ok_max_share_over_0_5_pct) + " %)";
+  }
+  v.roi_points_part = std::move(points_part);
+  v.residual_mm = std::move(residual_mm);
+  return v;
+}
+
+}  // namespace
+
+namespace {
+
+std::string fmt_mm(double v, int precision) {
+  char buf[48];
+  std::snprintf(buf, sizeof buf, "%.*f", precision, v);
+  return buf;
+}
+
+/// A tool's volume at one pose, for the swept footprint: a ball (centre, radius) or a cylinder
+/// (axis from `a` to `b`, radius), both grown by the margin.
+struct ToolVolume {
+  Vec3 a, b;
+  double radius = 0.0;
+  std::size_t region = 0;  ///< index into the recipe's regions
+  [[nodiscard]] bool contains(const Vec3& q) const {
+    const Vec3 ab = b - a;
+    const double len2 = ab.squaredNorm();
+    const double f = len2 > 0.0 ? std::clamp((q - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
+    return (q - (a + f * ab)).squaredNorm() <= radius * radius;
+  }
+};
+
+/// Every pose of the trajectories and every 1 mm of the moves between them (validate()'s
+/// sampling), as tool volumes in the part frame.
+std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground,
+                                      const Transform& T_part_base) {
+  const auto& recipe = loaded.recipe;
+  std::vector<ToolVolume> out;
+  for (const auto& traj : ground) {
+    for (std::size_t i = 0; i < traj.points.size(); ++i) {
+      const std::string name = traj.region_of(traj.points[i]);
+      const auto it = std::find_if(recipe.regions.begin(), recipe.regions.end(),
+                                   [&](const config::Region& r) { return r.name == name; });
+      if (it == recipe.regions.end()) continue;
+      const auto& tool = loaded.tool_for(*it);
+      const double R = 0.5 * tool.diameter_mm;
+      const bool ball = tool.shape == config::ToolShape::ball;
+      const double grow = recipe.verification.footprint_margin_mm;
+      auto add = [&](const Pose& m) {
+        const Transform T = T_part_base * m.to_transform();
+        const Vec3 tip = T.translation(), z = T.linear().col(2);
+        ToolVolume v;
+        v.region = static_cast<std::size_t>(it - recipe.regions.begin());
+        v.a = ball ? Vec3(tip + R * z) : tip;
+        v.b = ball ? v.a : Vec3(tip + std::max(0.0, tool.length_mm) * z);
+        v.radius = R + grow;
+        out.push_back(v);
+      };
+      if (i > 0)
+        planning::for_each_move_sample(traj.points[i - 1].T_base_tool, traj.points[i].T_base_tool, [&](const Pose& m) {
+          add(m);
+          return true;
+        });
+      add(traj.points[i].T_base_tool);
+    }
+  }
+  return out;
+}
+
+/// The swept volumes by the grid cells their bounding boxes overlap: a point tests only the
+/// volumes of its cell, in their order (the scan's 10^5 points against the trajectories' 10^4
+/// poses one by one made the verification seconds slower).
+class VolumeIndex {
+ public:
+  VolumeIndex(const std::vector<ToolVolume>& volumes, double cell) : volumes_(volumes), keys_{cell} {
+    for (std::size_t i = 0; i < volumes.size(); ++i) {
+      const auto& v = volumes[i];
+      const auto lo = keys_.coords(v.a.cwiseMin(v.b) - Vec3::Constant(v.radius));
+      const auto hi = keys_.coords(v.a.cwiseMax(v.b) + Vec3::Constant(v.radius));
+      for (auto z = lo[2]; z <= hi[2]; ++z)
+        for (auto y = lo[1]; y <= hi[1]; ++y)
+          for (auto x = lo[0]; x <= hi[0]; ++x) cells_[CellKeys::pack(x, y, z)].push_back(i);
+    }
+  }
+  /// The first volume holding q, or nullptr.
+  [[nodiscard]] const ToolVolume* containing(const Vec3& q) const {
+    const auto it = cells_.find(keys_.key(q));
+    if (it == cells_.end()) return nullptr;
+    for (auto i : it->second)
+      if (volumes_[i].contains(q)) return &volumes_[i];
+    return nullptr;
+  }
+
+ private:
+  const std::vector<ToolVolume>& volumes_;
+  CellKeys keys_;
+  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
+};
+
+}  // namespace
+
+std::string GougeFinding::describe() const {
+  return std::string("gouged ") + (in_roi ? "in" : "outside") + " region " + region + " at (" + fmt_mm(at_part.x(), 2) +
+         ", " + fmt_mm(at_part.y(), 2) + ", " + fmt_mm(at_part.z(), 2) + ") mm (part frame), depth " +
+         fmt_mm(depth_mm, 3) + " mm";
+}
+
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig& cell, const std::vector<View>& rescan,
+                                  const Progress& progress) {
+  return verify(loaded, cell, rescan, {}, progress);
+}
+
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig&, const std::vector<View>& rescan,
+                                  const std::vector<Trajectory>& ground, const Progress& progress) {
+  const auto& recipe = loaded.recipe;
+  const auto& vs = recipe.verification;
+  VerificationResult out;
+  const std::size_t total = 3;
+  // the re-scan without flying pixels: beside a wall they stand in the air and read as material
+  auto ins = locate(loaded, rescan, vs.jump_edge_mm, out.timings, progress, total);
+  if (!ins) return ins.error();
+  const auto t0 = Clock::now();
+  report(progress, 2, total, "verify");
+  out.T_base_part = ins->whole.T_scene_template;
+  for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
+    const auto& region = recipe.regions[i];
+    const auto& rr = ins->regions[i];
+    // The region's own fine pose where it could be found, else the whole part's (after
+    // grinding a region may have too few features of its own).
+    const Transform T_region_part = rr.ok() ? rr.registration.T_scene_template.inverse() * out.T_base_part
+                                            : Transform::Identity();
+    const Eigen::Isometry3f T = T_region_part.cast<float>();
+    std::vector<Eigen::Vector3f> pts;
+    for (const auto& p : ins->scene_part.points) {
+      const Eigen::Vector3f q = T * p;
+      if (config::roi_contains(region, q)) pts.push_back(q);
+    }
+    // Residuals on the planner's signed distance (golden samples with their normals, edges
+    // handled): the voxel-averaged vision template blends the two normals at every edge and
+    // read exactly ground edges as 0.5 mm off.
+    std::vector<float> residual;
+    residual.reserve(pts.size());
+    for (const auto& q : pts) residual.push_back(static_cast<float>(loaded.template_sdf(q.cast<double>())));
+    out.regions.push_back(judge_region(region, recipe.verification,
+                                       static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
+                                       std::move(residual)));
+  }
+
+  // Gouges wherever the tool went: the whole part's re-scan (part frame, the whole part's pose)
+  // in every ROI and in the swept footprint of every uploaded pose and move. A place counts
+  // when the median of the points within gouge_confirm_radius_mm lies more than gouge_depth_mm
+  // below the template (tests Pipeline.VerifyFindsAGougeOutsideEveryRoiWhereTheToolWent,
+  // Pipeline.VerifyFindsNoGougeWhereAnExactlyGroundCastingWasGround).
+  {
+    const auto& scene = ins->scene_part.points;
+    const auto volumes = swept_volumes(loaded, ground, out.T_base_part.inverse());
+    const VolumeIndex footprint(volumes, 8.0);
+    std::vector<float> residual(scene.size());
+    for (std::size_t k = 0; k < scene.size(); ++k)
+      residual[k] = static_cast<float>(loaded.template_sdf(scene[k].cast<double>()));
+    // where a point is: the ROI holding it, else the footprint of a region's tool, else nowhere
+    auto place = [&](const Vec3& q, std::string& region, bool& in_roi) {
+      for (const auto& r : recipe.regions)
+        if (config::roi_contains(r, q.cast<float>())) {
+          region = r.name, in_roi = true;
+          return true;
+        }
+      if (const ToolVolume* v = footprint.containing(q)) {
+        region = recipe.regions[v->region].name, in_roi = false;
+        return true;
+      }
+      return false;
+    };
+    for (const auto& p : scene) {
+      std::string region;
+      bool in_roi = false;
+      if (place(p.cast<double>(), region, in_roi) && !in_roi) ++out.footprint_points;
+    }
+    // candidates from half the gouge depth: the deepest confirmed place is reported even when it
+    // is no gouge
+    std::vector<std::size_t> candidates;
+    for (std::size_t k = 0; k < scene.size(); ++k)
+      if (-residual[k] > 0.5 * vs.gouge_depth_mm) candidates.push_back(k);
+    if (!candidates.empty()) {
+      const PointCells cells(scene, std::max(0.25, vs.gouge_confirm_radius_mm));
+      std::vector<float> near;
+      for (auto k : candidates) {
+        const Vec3 q = scene[k].cast<double>();
+        GougeFinding g;
+        if (!place(q, g.region, g.in_roi)) continue;
+        const auto median = neighbourhood_median(cells, scene, residual, k, vs.gouge_confirm_radius_mm, near);
+        if (!median) continue;
+        const double depth = -*median;
+        out.deepest_below_mm = std::max(out.deepest_below_mm, depth);
+        if (depth <= vs.gouge_depth_mm) continue;
+        if (out.worst_gouge && out.worst_gouge->depth_mm >= depth) continue;
+        g.depth_mm = depth;
+        g.at_part = q;
+        g.points = near.size();  // the neighbourhood's points
+        out.worst_gouge = g;
+      }
+    }
+  }
+
+  for (const auto& r : out.regions) {
+    if (r.verdict == Verdict::nok) out.verdict = Verdict::nok;
+    else if (r.verdict == Verdict::regrind && out.verdict == Verdict::ok) out.verdict = Verdict::regrind;
+  }
+  if (out.worst_gouge) out.verdict = Verdict::nok;
+  out.timings.push_back({"verify", ms_since(t0)});
+  report(progress, total, total, "done");
+  return out;
+}
+
+}  // namespace fettle::process
