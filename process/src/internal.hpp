@@ -1,5 +1,6 @@
 #pragma once
-// Helpers shared by the pipeline's translation units (recipe.cpp, process.cpp, verify.cpp).
+// Helpers shared by the pipeline's translation units (recipe.cpp, process.cpp, verify.cpp); not
+// installed: process/include/ has the library's interface.
 #include <chrono>
 #include <string>
 #include <vector>
@@ -7,7 +8,7 @@
 #include "fettle/core/result.hpp"
 #include "fettle/process/pipeline.hpp"
 
-namespace fettle::process::detail {
+namespace fettle::process {
 
 using Clock = std::chrono::steady_clock;
 
@@ -27,4 +28,4 @@ inline Error step_error(const std::string& step, const Error& inner) {
 Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<View>& views, double jump_edge_mm,
                                   std::vector<StepTiming>& timings, const Progress& progress, std::size_t total);
 
-}  // namespace fettle::process::detail
+}  // namespace fettle::process

@@ -3,22 +3,10 @@
 #include "fettle/process/pipeline.hpp"
 
 #include <algorithm>
-#include <array>
-#include <cstdint>
-#include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <limits>
-#include <sstream>
-#include <system_error>
-#include <unordered_map>
+#include <string>
 
-#include "fettle/config/load.hpp"
-#include "fettle/config/roi.hpp"
-#include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
-#include "fettle/planning/sdf_grid.hpp"
-#include "fettle/planning/surface.hpp"
 #include "fettle/vision/multiview.hpp"
 #include "fettle/vision/preprocess.hpp"
 #include "internal.hpp"
@@ -26,10 +14,6 @@
 namespace fettle::process {
 
 namespace fs = std::filesystem;
-using detail::Clock;
-using detail::ms_since;
-using detail::report;
-using detail::step_error;
 
 namespace {
 
@@ -84,8 +68,6 @@ bool selected(const ProcessOptions& options, const std::string& name) {
 
 }  // namespace
 
-namespace detail {
-
 /// Locates the part and its regions in the views, each view without its flying pixels first
 /// when jump_edge_mm > 0. Organized views (the camera's) go to the vision stage as they are:
 /// image-space outliers per view, every view's pixels into one voxel grid at its slide pose
@@ -134,9 +116,6 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
   return ins;
 }
 
-}  // namespace detail
-
-using detail::locate;
 
 Result<ProcessOutput> process(const LoadedRecipe& recipe, const config::CellConfig& cell, const std::vector<View>& views,
                               const Progress& progress) {

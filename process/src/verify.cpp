@@ -4,33 +4,16 @@
 
 #include <algorithm>
 #include <array>
-#include <cstdint>
-#include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
-#include <limits>
-#include <sstream>
-#include <system_error>
+#include <string>
 #include <unordered_map>
 
-#include "fettle/config/load.hpp"
 #include "fettle/config/roi.hpp"
-#include "fettle/core/error.hpp"
-#include "fettle/core/log.hpp"
-#include "fettle/planning/sdf_grid.hpp"
-#include "fettle/planning/surface.hpp"
-#include "fettle/vision/multiview.hpp"
-#include "fettle/vision/preprocess.hpp"
 #include "internal.hpp"
 
 namespace fettle::process {
-
-namespace fs = std::filesystem;
-using detail::Clock;
-using detail::ms_since;
-using detail::report;
-using detail::step_error;
-using detail::locate;
 
 const char* to_string(Verdict verdict) {
   switch (verdict) {

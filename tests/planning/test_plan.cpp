@@ -14,6 +14,14 @@ namespace {
 using testing::make_scene;
 using testing::part_sdf;
 
+/// Whether a grinding point of the plan has `m` under its tool (radius R, axis along z): the
+/// riser raster's coverage in plan view.
+bool under_a_grinding_point(const RegionPlan& plan, const Vec3& m, double R) {
+  return std::any_of(plan.points.begin(), plan.points.end(), [&](const TrajectoryPoint& p) {
+    return p.kind == MoveKind::grind && (p.T_base_tool.position_mm.head<2>() - m.head<2>()).norm() <= R + 1e-9;
+  });
+}
+
 TEST(RiserLayers, OnePassWhenWithinTheDepthElseCeilDOverDepth) {
   EXPECT_EQ(layer_levels({1.5, 0.3}, 2.0, 0.05).size(), 1U);
   EXPECT_NEAR(layer_levels({1.5, 0.3}, 2.0, 0.05).back(), 0.05, 1e-12);
@@ -94,13 +102,7 @@ TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) 
   EXPECT_GT(grind, 100U);
   EXPECT_GT(air, 2U * (plan->segments - 1U));  // lifts over the gaps besides those between layers
   // every material point is under the ball of some grinding point
-  for (const auto& m : in.excess_points_part) {
-    bool covered = false;
-    for (const auto& p : plan->points)
-      covered = covered || (p.kind == MoveKind::grind &&
-                            (p.T_base_tool.position_mm.head<2>() - m.head<2>()).norm() <= R + 1e-9);
-    EXPECT_TRUE(covered) << m.transpose();
-  }
+  for (const auto& m : in.excess_points_part) EXPECT_TRUE(under_a_grinding_point(*plan, m, R)) << m.transpose();
   // the whole trajectory keeps the allowance, lifts included
   RegionInput one = in;
   const auto traj = plan_part("p", {one}, settings);
@@ -156,13 +158,7 @@ TEST(RiserPlan, AMoveUpOntoAHigherBlockBesideThePadIsLiftedOver) {
   EXPECT_GT(air, 2U * (plan->segments - 1U));  // and lifts over the moves up onto it
   EXPECT_EQ(plan->left_mm, 0.0);
   // every material point is under the wheel of some grinding point
-  for (const auto& m : in.excess_points_part) {
-    bool covered = false;
-    for (const auto& p : plan->points)
-      covered = covered || (p.kind == MoveKind::grind &&
-                            (p.T_base_tool.position_mm.head<2>() - m.head<2>()).norm() <= R + 1e-9);
-    EXPECT_TRUE(covered) << m.transpose();
-  }
+  for (const auto& m : in.excess_points_part) EXPECT_TRUE(under_a_grinding_point(*plan, m, R)) << m.transpose();
   // every pose and move of the whole trajectory keeps the allowance (plan_part validates it)
   const auto traj = plan_part("p", {in}, settings);
   ASSERT_TRUE(traj) << traj.error().message;
