@@ -10,7 +10,7 @@
 
 #include "fettle/config/calibration.hpp"
 #include "fettle/config/load.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/drivers/camera.hpp"
 #include "fettle/drivers/camera_ply.hpp"

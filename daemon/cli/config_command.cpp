@@ -5,7 +5,7 @@
 #include <string>
 
 #include "fettle/config/load.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 
 namespace {
 

@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/daemon/control.hpp"
 
 namespace {

@@ -14,7 +14,7 @@
 
 #include "fettle/config/load.hpp"
 #include "fettle/core/atomic_file.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/inspect.hpp"
 

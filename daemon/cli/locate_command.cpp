@@ -7,7 +7,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/registration.hpp"
 

@@ -13,7 +13,7 @@
 #include "fettle/config/calibration.hpp"
 #include "fettle/config/load.hpp"
 #include "fettle/core/atomic_file.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/process/pipeline.hpp"
 #include "fettle/vision/cloud.hpp"
 

@@ -7,7 +7,7 @@
 #include <sstream>
 #include <string>
 
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/daemon/control.hpp"
 
 namespace {

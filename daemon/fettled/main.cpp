@@ -12,7 +12,7 @@
 #include <boost/asio/post.hpp>
 
 #include "fettle/config/load.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/daemon/control.hpp"
 #include "fettle/daemon/runtime.hpp"

@@ -21,7 +21,7 @@
 #include <vector>
 
 #include "fettle/config/load.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/camera.hpp"

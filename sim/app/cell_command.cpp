@@ -24,7 +24,7 @@
 
 #include "fettle/config/load.hpp"
 #include "fettle/core/atomic_file.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/cell.hpp"

@@ -2,7 +2,7 @@
 #include <cstdio>
 #include <memory>
 
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "sim_common.hpp"
 

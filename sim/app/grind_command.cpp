@@ -7,7 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include "fettle/core/atomic_file.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "sim_common.hpp"
 

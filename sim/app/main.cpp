@@ -1,6 +1,6 @@
 // fettle-sim: the hardware simulator. Its commands live in sim/app/*_command.cpp and
 // register themselves (FETTLE_COMMAND).
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 
 int main(int argc, char** argv) {
   return fettle::cli::main_with_commands(

@@ -14,7 +14,7 @@
 #include <thread>
 
 #include "fettle/config/load.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/sim/plc.hpp"
 

@@ -4,7 +4,7 @@
 #include <iostream>
 #include <memory>
 
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "sim_common.hpp"
 

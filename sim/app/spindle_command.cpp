@@ -19,7 +19,7 @@
 #include <boost/asio/steady_timer.hpp>
 #include <boost/asio/streambuf.hpp>
 
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/drivers/canopen_transport.hpp"
 #include "fettle/sim/spindle.hpp"

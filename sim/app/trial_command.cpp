@@ -24,7 +24,7 @@
 
 #include "fettle/config/roi.hpp"
 #include "fettle/core/atomic_file.hpp"
-#include "fettle/core/cli.hpp"
+#include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/process/pipeline.hpp"
@@ -55,7 +55,8 @@ struct Args {
   bool log_level_given = false;  ///< --log-level was given: the logs as asked
 };
 
-/// Seeds drawn at run time start above this: seeds 1-50 are the tests' and were looked at.
+/// Seeds drawn at run time start above this: seeds 1-50 are the tests' own, known castings,
+/// and a held-out draw must not include them.
 constexpr std::uint64_t kRandomSeedsAbove = 1000;
 
 /// "A-B", "N" or "random:N" (N consecutive castings from a start drawn now, above
