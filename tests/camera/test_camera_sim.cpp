@@ -186,9 +186,32 @@ TEST_F(CameraSim, MoreDroppedFramesThanRetriesIsACameraFault) {
   ASSERT_FALSE(c.ok());
   EXPECT_EQ(c.error().code, "camera.fault");
   EXPECT_THAT(c.error().message, HasSubstr("after 2 attempts"));
-  // The camera is not broken for good: the next capture works.
+  // The camera is not broken for good: the next capture works, on a fresh connection.
   auto again = camera.capture();
   ASSERT_TRUE(again.ok()) << again.error().message;
+  EXPECT_TRUE(again->stats.reconnected);
+  EXPECT_EQ(camera.reconnects(), 1);
+}
+
+// A camera that stopped acquiring by itself acknowledges triggers and sends nothing, and Aravis'
+// heartbeat still finds our control: only a new connection (which starts acquisition again)
+// brings the frames back. The capture that finds no frame fails; the next one reconnects.
+TEST_F(CameraSim, ACameraThatStoppedAcquiringIsReopenedByTheNextCapture) {
+  auto o = driver_options();
+  o.frame_timeout_ms = 400;
+  o.retries = 1;
+  fd::Camera camera(o);
+  ASSERT_TRUE(camera.capture().ok());
+  sim_->stop_acquisition();
+  auto lost = camera.capture();
+  ASSERT_FALSE(lost.ok());
+  EXPECT_EQ(lost.error().code, "camera.fault");
+  EXPECT_FALSE(camera.control_lost()) << "the heartbeat noticed: this test no longer tests the silent case";
+  auto c = camera.capture();
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  EXPECT_TRUE(c->stats.reconnected);
+  EXPECT_EQ(camera.reconnects(), 1);
+  EXPECT_GT(check_geometry(c->cloud, scene_, 0.0), 2000u);
 }
 
 TEST_F(CameraSim, MissingPacketsAreRetriedAndCounted) {

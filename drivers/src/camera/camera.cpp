@@ -139,6 +139,11 @@ struct Camera::Impl {
   gulong control_lost_handler = 0;
   ArvDevice* device = nullptr;  ///< owned by camera
   std::atomic<bool> control_lost{false};
+  /// The last capture got no complete frame: the next one starts with a fresh camera and stream.
+  /// Whatever stopped the frames (the camera dropped our control after a heartbeat gap without
+  /// Aravis noticing, a stream socket gone bad, a camera rebooted between two heartbeats), a new
+  /// connection clears it; a camera that is merely losing packets costs one reconnect.
+  bool reopen = false;
   int reconnects = 0;
   OrganizedCloud scratch;
 
@@ -360,15 +365,18 @@ struct Camera::Impl {
 
   /// Tears down the camera and the stream and opens them again.
   Status recreate() {
-    logger()->warn("camera {}: control lost; recreating the camera and its stream", address);
+    const bool lost = control_lost;
+    logger()->warn("camera {}: {}; recreating the camera and its stream", address,
+                   lost ? "control lost" : "the last capture got no complete frame");
     close();
     try {
       open();
     } catch (const Exception& ex) {
       control_lost = true;
-      return Error{"camera.control_lost", std::string("control of the camera was lost and reconnecting failed: ") +
-                                              ex.what()};
+      return Error{"camera.control_lost", std::string(lost ? "control of the camera was lost" : "the camera sent no frame") +
+                                              " and reconnecting failed: " + ex.what()};
     }
+    reopen = false;
     ++reconnects;
     return {};
   }
@@ -394,7 +402,7 @@ struct Camera::Impl {
 
   Status capture(CameraCapture& out) {
     CaptureStats st;
-    if (control_lost) {
+    if (control_lost || reopen) {
       if (auto s = recreate(); !s) return s.error();
       st.reconnected = true;
     }
@@ -467,6 +475,7 @@ struct Camera::Impl {
       return {};
     }
     finish_stats(st);
+    reopen = true;
     logger()->error("camera {}: fault after {} attempts (last: {}); resent packets {}, missing packets {}, underruns {}",
                     address, st.attempts, last, st.resent_packets, st.missing_packets, st.underruns);
     return Error{"camera.fault", "camera " + address + ": no complete frame after " + std::to_string(st.attempts) +

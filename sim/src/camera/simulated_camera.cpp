@@ -279,6 +279,9 @@ void SimulatedCamera::lose_packets(int frames, double ratio) {
 void SimulatedCamera::set_packet_loss(double ratio) { impl_->base_loss = ratio; }
 void SimulatedCamera::stall_next_frame_ms(int ms) { impl_->stall_ms = ms; }
 void SimulatedCamera::revoke_control() { arv_fake_camera_set_control_channel_privilege(impl_->fake, 0); }
+void SimulatedCamera::stop_acquisition() {
+  arv_fake_camera_write_register(impl_->fake, ARV_FAKE_CAMERA_REGISTER_ACQUISITION, 0);
+}
 std::uint64_t SimulatedCamera::frames_sent() const { return impl_->sent; }
 
 }  // namespace fettle::sim

@@ -8,7 +8,8 @@
 // values: "camera.fault" after `retries` failed attempts (timeouts, missing packets),
 // "camera.unsupported_pixel_format", "camera.control_lost" if reconnecting failed.
 // When Aravis reports control-lost (the heartbeat found another controller, or the camera
-// rebooted), the next capture() tears down and recreates the camera and its stream.
+// rebooted), and after a capture that got no complete frame, the next capture() tears down
+// and recreates the camera and its stream.
 #include <cstdint>
 #include <memory>
 #include <optional>

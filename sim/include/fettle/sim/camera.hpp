@@ -97,6 +97,10 @@ class SimulatedCamera {
   /// Drops the controller's privilege as a camera reboot would: the driver's heartbeat sees
   /// it and Aravis signals control-lost.
   void revoke_control();
+  /// The camera stops acquiring by itself (another program's AcquisitionStop, a firmware reset
+  /// that keeps its address and our control): triggers are still acknowledged but no frame
+  /// comes, and the driver's heartbeat sees nothing wrong.
+  void stop_acquisition();
 
   /// Frames rendered and sent (including dropped ones).
   [[nodiscard]] std::uint64_t frames_sent() const;
