@@ -13,7 +13,7 @@
 #include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/drivers/camera.hpp"
-#include "fettle/drivers/camera_ply.hpp"
+#include "fettle/core/ply.hpp"
 
 namespace {
 
@@ -70,7 +70,7 @@ int camera_capture(const Args& a) {
                ? fettle::exit_code::failure
                : fettle::exit_code::device;
   }
-  if (auto s = fettle::drivers::write_ply(a.out, c->cloud); !s) throw fettle::UserError(s.error().message);
+  if (auto s = fettle::write_ply(a.out, c->cloud); !s) throw fettle::UserError(s.error().message);
   std::cout << a.out.string() << ": " << c->cloud.width << " x " << c->cloud.height << " organized cloud, "
             << c->cloud.count_valid() << " valid points (frame " << c->frame_id << ", "
             << fettle::drivers::pixel_format_name(c->pixel_format) << ", " << c->stats.attempts << " attempt"

@@ -1,4 +1,4 @@
-// Trajectory files (JSON / CSV, compatible with fettle::sim::read_trajectory) and preview.png.
+// The planner's output files: trajectory.json and .csv (core's format) and preview.png.
 #include "fettle/planning/io.hpp"
 
 #include <cmath>
@@ -16,94 +16,6 @@
 #include "fettle/core/error.hpp"
 
 namespace fettle::planning {
-namespace {
-
-const char* kind_name(MoveKind k) {
-  switch (k) {
-    case MoveKind::approach: return "approach";
-    case MoveKind::grind: return "grind";
-    case MoveKind::air: return "air";
-    case MoveKind::retract: return "retract";
-  }
-  return "grind";
-}
-
-MoveKind kind_from(const std::string& s, const std::string& where) {
-  if (s == "approach") return MoveKind::approach;
-  if (s == "grind") return MoveKind::grind;
-  if (s == "air") return MoveKind::air;
-  if (s == "retract") return MoveKind::retract;
-  throw UserError(where + ": kind \"" + s + "\" is not one of approach, grind, air, retract");
-}
-
-}  // namespace
-
-Status write_trajectory_json(const std::filesystem::path& path, const Trajectory& trajectory) {
-  nlohmann::ordered_json j;
-  j["part_id"] = trajectory.part_id;
-  j["segment_regions"] = trajectory.segment_regions;
-  auto pts = nlohmann::ordered_json::array();
-  for (const auto& p : trajectory.points) {
-    const auto& x = p.T_base_tool.position_mm;
-    const auto& q = p.T_base_tool.orientation;
-    pts.push_back(nlohmann::ordered_json{{"x", x.x()}, {"y", x.y()}, {"z", x.z()}, {"qw", q.w()}, {"qx", q.x()},
-                                         {"qy", q.y()}, {"qz", q.z()}, {"speed_mm_s", p.speed_mm_s},
-                                         {"spindle_rpm", p.spindle_rpm}, {"segment", p.segment},
-                                         {"kind", kind_name(p.kind)}});
-  }
-  j["points"] = std::move(pts);
-  return write_file_atomic(path, j.dump(1) + "\n");
-}
-
-Status write_trajectory_csv(const std::filesystem::path& path, const Trajectory& trajectory) {
-  std::ostringstream os;
-  os << "x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment,kind\n";
-  os << std::setprecision(std::numeric_limits<double>::max_digits10);
-  for (const auto& p : trajectory.points) {
-    const auto& x = p.T_base_tool.position_mm;
-    const auto& q = p.T_base_tool.orientation;
-    os << x.x() << ',' << x.y() << ',' << x.z() << ',' << q.w() << ',' << q.x() << ',' << q.y() << ',' << q.z()
-       << ',' << p.speed_mm_s << ',' << p.spindle_rpm << ',' << p.segment << ',' << kind_name(p.kind) << '\n';
-  }
-  return write_file_atomic(path, os.str());
-}
-
-Trajectory read_trajectory_json(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  if (!in) throw UserError(path.string() + ": cannot open the trajectory file");
-  nlohmann::json j;
-  try {
-    j = nlohmann::json::parse(in);
-  } catch (const nlohmann::json::exception& e) {
-    throw UserError(path.string() + ": not valid JSON: " + e.what());
-  }
-  Trajectory t;
-  try {
-    t.part_id = j.at("part_id").get<std::string>();
-    t.segment_regions = j.at("segment_regions").get<std::vector<std::string>>();
-    const auto& pts = j.at("points");
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      const auto& p = pts[i];
-      const std::string where = path.string() + ": points[" + std::to_string(i) + "]";
-      try {
-        TrajectoryPoint q;
-        q.T_base_tool.position_mm = Vec3(p.at("x").get<double>(), p.at("y").get<double>(), p.at("z").get<double>());
-        q.T_base_tool.orientation = Quat(p.at("qw").get<double>(), p.at("qx").get<double>(), p.at("qy").get<double>(),
-                                         p.at("qz").get<double>());
-        q.speed_mm_s = p.at("speed_mm_s").get<double>();
-        q.spindle_rpm = p.at("spindle_rpm").get<double>();
-        q.segment = p.at("segment").get<int>();
-        if (p.contains("kind")) q.kind = kind_from(p.at("kind").get<std::string>(), where);
-        t.points.push_back(q);
-      } catch (const nlohmann::json::exception& e) {
-        throw UserError(where + ": " + e.what());
-      }
-    }
-  } catch (const nlohmann::json::exception& e) {
-    throw UserError(path.string() + ": " + e.what());
-  }
-  return t;
-}
 
 Status write_preview_png(const std::filesystem::path& path, const std::vector<PreviewPoint>& cloud,
                          const Trajectory& trajectory) {

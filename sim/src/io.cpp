@@ -1,4 +1,5 @@
-// Files the simulator writes and reads: PLY, PCD, range images, ground truth, trajectories.
+// Files the simulator writes and reads: PLY, PCD, range images, ground truth; the check of a
+// trajectory before the simulated robot runs it.
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -12,6 +13,7 @@
 #include "casting_model.hpp"
 #include "fettle/core/atomic_file.hpp"
 #include "fettle/core/error.hpp"
+#include "fettle/core/ply.hpp"
 
 namespace fettle::sim {
 namespace {
@@ -45,36 +47,13 @@ ordered_json pose_json(const Transform& T) {
 
 }  // namespace
 
-Status write_ply(const std::filesystem::path& path, const OrganizedCloud& cloud, const Transform& T) {
-  const std::size_t n = cloud.count_valid();
-  std::string out = "ply\nformat binary_little_endian 1.0\ncomment fettle-sim, millimetres\nelement vertex " +
-                    std::to_string(n) + "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
-  out.reserve(out.size() + n * 12);
+Status write_valid_points_ply(const std::filesystem::path& path, const OrganizedCloud& cloud, const Transform& T) {
+  std::vector<Eigen::Vector3f> points;
+  points.reserve(cloud.count_valid());
   const Eigen::Isometry3f Tf = T.cast<float>();
-  for (const auto& p : cloud.points) {
-    if (!p.allFinite()) continue;
-    const Eigen::Vector3f q = Tf * p;
-    append(out, q.x()), append(out, q.y()), append(out, q.z());
-  }
-  return write_file_atomic(path, out);
-}
-
-Result<std::vector<Eigen::Vector3f>> read_ply(const std::filesystem::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Error{"sim.ply_open", path.string() + ": cannot open"};
-  std::string line;
-  std::size_t n = 0;
-  bool binary = false;
-  while (std::getline(in, line)) {
-    if (line.rfind("format binary_little_endian", 0) == 0) binary = true;
-    if (line.rfind("element vertex ", 0) == 0) n = std::stoul(line.substr(15));
-    if (line == "end_header") break;
-  }
-  if (!binary) return Error{"sim.ply_format", path.string() + ": only binary little-endian PLY (x y z float) is read"};
-  std::vector<Eigen::Vector3f> pts(n);
-  for (auto& p : pts) in.read(reinterpret_cast<char*>(p.data()), 12);  // NOLINT
-  if (!in) return Error{"sim.ply_short", path.string() + ": file ends before its " + std::to_string(n) + " points"};
-  return pts;
+  for (const auto& p : cloud.points)
+    if (p.allFinite()) points.push_back(Tf * p);
+  return fettle::write_ply(path, points, {}, {}, "fettle-sim, millimetres");
 }
 
 Status write_pcd(const std::filesystem::path& path, const OrganizedCloud& cloud) {
@@ -183,158 +162,14 @@ Status write_capture(const std::filesystem::path& dir, const std::string& stem, 
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) return Error{"sim.out_dir", dir.string() + ": cannot create the directory: " + ec.message()};
-  if (auto s = write_ply(dir / (stem + ".ply"), c.cloud); !s) return s;
+  if (auto s = write_valid_points_ply(dir / (stem + ".ply"), c.cloud); !s) return s;
   if (auto s = write_pcd(dir / (stem + ".pcd"), c.cloud); !s) return s;
   if (auto s = write_range_images(dir, stem, c); !s) return s;
   return write_file_atomic(dir / (stem + ".truth.json"), ground_truth_json(c.truth));
 }
 
 // ---------------------------------------------------------------------------------------------
-// Trajectories
-
-namespace {
-
-MoveKind kind_from(const std::string& s, const std::string& where) {
-  if (s == "approach") return MoveKind::approach;
-  if (s == "grind") return MoveKind::grind;
-  if (s == "air") return MoveKind::air;
-  if (s == "retract") return MoveKind::retract;
-  throw UserError(where + ": kind \"" + s + "\" is not one of approach, grind, air, retract");
-}
-
-const char* kind_name(MoveKind k) {
-  switch (k) {
-    case MoveKind::approach:
-      return "approach";
-    case MoveKind::grind:
-      return "grind";
-    case MoveKind::air:
-      return "air";
-    case MoveKind::retract:
-      return "retract";
-  }
-  return "grind";
-}
-
-double parse_number(const std::string& s, const std::string& where) {
-  // NaN and inf are accepted here on purpose: validate_trajectory reports them by point.
-  try {
-    std::size_t used = 0;
-    const double v = std::stod(s, &used);
-    if (s.find_first_not_of(" \t\r", used) != std::string::npos) throw std::invalid_argument(s);
-    return v;
-  } catch (const std::exception&) {
-    throw UserError(where + ": \"" + s + "\" is not a number");
-  }
-}
-
-}  // namespace
-
-Trajectory read_trajectory(const std::filesystem::path& path) {
-  std::ifstream in(path);
-  if (!in) throw UserError(path.string() + ": cannot open the trajectory file");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  const std::string text = ss.str();
-  Trajectory t;
-  const auto first = text.find_first_not_of(" \t\r\n");
-  if (first != std::string::npos && text[first] == '{') {
-    nlohmann::json j;
-    try {
-      j = nlohmann::json::parse(text, nullptr, true, false);
-    } catch (const nlohmann::json::parse_error& e) {
-      // byte offset -> line
-      const std::size_t off = std::min<std::size_t>(e.byte, text.size());
-      const auto line = 1 + std::count(text.begin(), text.begin() + static_cast<std::ptrdiff_t>(off), '\n');
-      throw UserError(path.string() + ":" + std::to_string(line) + ": JSON syntax error: " + e.what());
-    }
-    try {
-      t.part_id = j.value("part_id", "");
-      if (j.contains("segment_regions")) t.segment_regions = j.at("segment_regions").get<std::vector<std::string>>();
-      std::size_t i = 0;
-      for (const auto& p : j.at("points")) {
-        TrajectoryPoint q;
-        auto get = [&](const char* k) {
-          const auto& v = p.at(k);
-          if (v.is_string()) return parse_number(v.get<std::string>(), path.string() + ": points[" + std::to_string(i) + "]." + k);
-          return v.get<double>();
-        };
-        q.T_base_tool.position_mm = Vec3(get("x"), get("y"), get("z"));
-        q.T_base_tool.orientation = Quat(get("qw"), get("qx"), get("qy"), get("qz"));
-        q.speed_mm_s = get("speed_mm_s");
-        q.spindle_rpm = get("spindle_rpm");
-        q.segment = p.value("segment", 0);
-        if (p.contains("kind")) q.kind = kind_from(p.at("kind").get<std::string>(), path.string() + ": points[" + std::to_string(i) + "]");
-        t.points.push_back(q);
-        ++i;
-      }
-    } catch (const nlohmann::json::exception& e) {
-      throw UserError(path.string() + ": point " + std::to_string(t.points.size()) + ": " + e.what() +
-                      " (each point needs x, y, z, qw, qx, qy, qz, speed_mm_s, spindle_rpm)");
-    }
-    return t;
-  }
-  // CSV
-  std::istringstream lines(text);
-  std::string line;
-  int lineno = 0;
-  std::vector<std::string> header;
-  while (std::getline(lines, line)) {
-    ++lineno;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    if (line.empty() || line[0] == '#') continue;
-    std::vector<std::string> cells;
-    std::stringstream ls(line);
-    std::string cell;
-    while (std::getline(ls, cell, ',')) cells.push_back(cell);
-    const std::string where = path.string() + ":" + std::to_string(lineno);
-    if (header.empty()) {
-      header = cells;
-      const std::vector<std::string> need{"x", "y", "z", "qw", "qx", "qy", "qz", "speed_mm_s", "spindle_rpm", "segment"};
-      for (std::size_t k = 0; k < need.size(); ++k)
-        if (k >= header.size() || header[k] != need[k])
-          throw UserError(where + ": the header must be x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment[,kind]");
-      continue;
-    }
-    if (cells.size() < 10)
-      throw UserError(where + ": expected at least 10 values, got " + std::to_string(cells.size()));
-    double v[9];
-    for (std::size_t k = 0; k < 9; ++k) v[k] = parse_number(cells[k], where + ": column " + header[k]);
-    TrajectoryPoint q;
-    q.T_base_tool.position_mm = Vec3(v[0], v[1], v[2]);
-    q.T_base_tool.orientation = Quat(v[3], v[4], v[5], v[6]);
-    q.speed_mm_s = v[7];
-    q.spindle_rpm = v[8];
-    q.segment = static_cast<int>(parse_number(cells[9], where + ": column segment"));
-    if (cells.size() > 10) q.kind = kind_from(cells[10], where);
-    t.points.push_back(q);
-  }
-  if (header.empty()) throw UserError(path.string() + ": empty trajectory file");
-  return t;
-}
-
-Status write_trajectory_json(const std::filesystem::path& path, const Trajectory& t) {
-  ordered_json j;
-  j["part_id"] = t.part_id;
-  j["segment_regions"] = t.segment_regions;
-  ordered_json pts = ordered_json::array();
-  for (const auto& p : t.points) {
-    const auto& q = p.T_base_tool.orientation;
-    pts.push_back({{"x", p.T_base_tool.position_mm.x()},
-                   {"y", p.T_base_tool.position_mm.y()},
-                   {"z", p.T_base_tool.position_mm.z()},
-                   {"qw", q.w()},
-                   {"qx", q.x()},
-                   {"qy", q.y()},
-                   {"qz", q.z()},
-                   {"speed_mm_s", p.speed_mm_s},
-                   {"spindle_rpm", p.spindle_rpm},
-                   {"segment", p.segment},
-                   {"kind", kind_name(p.kind)}});
-  }
-  j["points"] = pts;
-  return write_file_atomic(path, j.dump(1) + "\n");
-}
+// Trajectories (the file format is core's: fettle/core/trajectory_io.hpp)
 
 Status validate_trajectory(const Trajectory& t, const CellLimits& lim) {
   if (t.points.empty()) return Error{"sim.trajectory_empty", "the trajectory has no points"};

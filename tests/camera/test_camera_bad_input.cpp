@@ -1,4 +1,4 @@
-// Bad camera data: frames whose size fields overflow or lie, and PLY scans (drivers::read_ply)
+// Bad camera data: frames whose size fields overflow or lie, and PLY scans (fettle::read_ply)
 // with headers that lie about the vertex count or claim billions of vertices. Each is refused
 // with its error code; none may read past the data or allocate more than the data can fill.
 #include <gmock/gmock.h>
@@ -14,7 +14,7 @@
 
 #include "../support/child_process.hpp"
 #include "fettle/drivers/camera_decode.hpp"
-#include "fettle/drivers/camera_ply.hpp"
+#include "fettle/core/ply.hpp"
 
 namespace fd = fettle::drivers;
 namespace fs = std::filesystem;
@@ -103,36 +103,36 @@ TEST(CameraDecodeBadInput, NonFiniteScan3dParametersGiveNaNOrAnErrorNeverACrash)
 
 TEST_F(PlyBadInput, HeaderClaimingMoreVerticesThanTheFileHoldsIsTruncated) {
   const auto f = write("short.ply", header("1000", "40", "25") + xyz(3));
-  auto cloud = fd::read_ply(f);
+  auto cloud = fettle::read_ply(f);
   ASSERT_FALSE(cloud.ok());
-  EXPECT_EQ(cloud.error().code, "camera.bad_ply");
+  EXPECT_EQ(cloud.error().code, "ply.bad");
   EXPECT_THAT(cloud.error().message, HasSubstr(f.string()));
 }
 
 TEST_F(PlyBadInput, HeaderClaimingBillionsOfVerticesIsRefusedWithoutAllocating) {
   const auto f = write("billions.ply", header("4000000000", "64000", "62500") + xyz(3));
   const auto out = fettle::test::run_in_child([f] {
-    auto cloud = fd::read_ply(f);
-    if (cloud.ok() || cloud.error().code != "camera.bad_ply") std::_Exit(3);
+    auto cloud = fettle::read_ply(f);
+    if (cloud.ok() || cloud.error().code != "ply.bad") std::_Exit(3);
   });
   EXPECT_TRUE(out.how == ChildOutcome::How::returned) << out.detail;
   EXPECT_LT(out.max_rss_mb, 512);
   // Also more than 2^32 vertices (the grid size cannot hold them).
   const auto g = write("huge.ply", header("99999999999999999") + xyz(1));
-  auto cloud = fd::read_ply(g);
+  auto cloud = fettle::read_ply(g);
   ASSERT_FALSE(cloud.ok());
-  EXPECT_EQ(cloud.error().code, "camera.bad_ply");
+  EXPECT_EQ(cloud.error().code, "ply.bad");
 }
 
 TEST_F(PlyBadInput, GridThatDoesNotMatchTheVerticesBecomesOneRow) {
   const auto f = write("grid.ply", header("6", "4", "4") + xyz(6));
-  auto cloud = fd::read_ply(f);
+  auto cloud = fettle::read_ply(f);
   ASSERT_TRUE(cloud.ok()) << cloud.error().message;
   EXPECT_EQ(cloud->width, 6U);
   EXPECT_EQ(cloud->height, 1U);
   // A grid whose product overflows 32 bits is not taken as matching either.
   const auto g = write("overflow.ply", header("0", "65536", "65536"));
-  auto empty = fd::read_ply(g);
+  auto empty = fettle::read_ply(g);
   ASSERT_TRUE(empty.ok()) << empty.error().message;
   EXPECT_EQ(std::size_t{empty->width} * empty->height, empty->points.size());
 }
@@ -148,10 +148,10 @@ TEST_F(PlyBadInput, GarbageHeadersAreRefused) {
            {"no_end.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 1\n"},
            {"binary_junk.ply", std::string("\0\xff\x10ply\n\n\n", 8)}}) {
     const auto f = write(name, text);
-    auto cloud = fd::read_ply(f);
+    auto cloud = fettle::read_ply(f);
     EXPECT_FALSE(cloud.ok()) << name;
     if (!cloud.ok()) {
-      EXPECT_EQ(cloud.error().code, "camera.bad_ply") << name;
+      EXPECT_EQ(cloud.error().code, "ply.bad") << name;
     }
   }
 }

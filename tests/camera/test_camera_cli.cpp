@@ -10,7 +10,7 @@
 #include <filesystem>
 #include <string>
 
-#include "fettle/drivers/camera_ply.hpp"
+#include "fettle/core/ply.hpp"
 
 namespace fs = std::filesystem;
 using ::testing::HasSubstr;
@@ -96,7 +96,7 @@ TEST(CameraCli, CaptureWritesTheFull32MegapixelOrganizedCloud) {
   const auto r = run(kFettle + " camera capture --address 127.0.0.1 --out " + out.string());
   ASSERT_EQ(r.exit_code, 0) << r.output;
   EXPECT_THAT(r.output, HasSubstr("2064 x 1544 organized cloud"));
-  auto cloud = fettle::drivers::read_ply(out);
+  auto cloud = fettle::read_ply(out);
   fs::remove(out);
   ASSERT_TRUE(cloud.ok()) << cloud.error().message;
   EXPECT_EQ(cloud->width, 2064u);

@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "fettle/drivers/camera_decode.hpp"
-#include "fettle/drivers/camera_ply.hpp"
+#include "fettle/core/ply.hpp"
 
 namespace fd = fettle::drivers;
 using ::testing::HasSubstr;
@@ -150,8 +150,8 @@ TEST(CameraPly, OrganizedCloudRoundTripsWithNaN) {
   c.height = 2;
   c.points = {{1, 2, 3}, fettle::OrganizedCloud::invalid(), {4, 5, 6}, {7, 8, 9}, {-1, -2, 1000}, {0, 0, 0.5f}};
   const auto file = std::filesystem::temp_directory_path() / ("fettle-ply-" + std::to_string(::getpid()) + ".ply");
-  ASSERT_TRUE(fd::write_ply(file, c).ok());
-  auto back = fd::read_ply(file);
+  ASSERT_TRUE(fettle::write_ply(file, c).ok());
+  auto back = fettle::read_ply(file);
   std::filesystem::remove(file);
   ASSERT_TRUE(back.ok()) << back.error().message;
   EXPECT_EQ(back->width, 3u);

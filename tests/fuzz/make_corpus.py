@@ -135,7 +135,7 @@ write(d, "nan_inf.ply", b"\x01" + b"ply\nformat binary_little_endian 1.0\nelemen
       struct.pack("<9f", float("nan"), 0, 0, float("inf"), 1, 2, 3, 4, 5))
 
 
-# ---- camera PLY as drivers::write_ply writes it (organized, NaN = no data)
+# ---- PLY as fettle::write_ply writes an organized cloud (NaN = no data)
 def organized_ply(w, h):
     data = b""
     for v in range(h):

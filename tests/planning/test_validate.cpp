@@ -261,7 +261,7 @@ TEST(Files, TrajectoryJsonCsvAndPreviewRoundTrip) {
   for (const auto& in : p.scene.inputs)
     for (const auto& x : in.excess_points_part) cloud.push_back({in.T_base_part * x, in.template_sdf(x)});
   ASSERT_TRUE(write_outputs(dir, p.traj, cloud));
-  const Trajectory back = read_trajectory_json(dir / "trajectory.json");
+  const Trajectory back = read_trajectory(dir / "trajectory.json");
   EXPECT_EQ(back.part_id, p.traj.part_id);
   EXPECT_EQ(back.segment_regions, p.traj.segment_regions);
   ASSERT_EQ(back.points.size(), p.traj.points.size());

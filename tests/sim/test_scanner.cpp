@@ -7,6 +7,7 @@
 #include <sstream>
 #include <unistd.h>
 
+#include "fettle/core/ply.hpp"
 #include "sim_test_util.hpp"
 
 using namespace fettle::sim;  // NOLINT
@@ -292,9 +293,9 @@ TEST_F(SimScan, SameSeedGivesIdenticalBytesAndAnotherSeedDoesNot) {
     EXPECT_FALSE(sa.str().empty()) << f;
     EXPECT_EQ(sa.str(), sc.str()) << f;
   }
-  const auto pts = read_ply(dir / "a" / "view0.ply");
+  const auto pts = fettle::read_ply(dir / "a" / "view0.ply");
   ASSERT_TRUE(pts.ok());
-  EXPECT_EQ(pts->size(), a.cloud.count_valid());
+  EXPECT_EQ(pts->points.size(), a.cloud.count_valid());
   std::filesystem::remove_all(dir);
 }
 

@@ -15,6 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "fettle/core/ply.hpp"
 #include "sim_test_util.hpp"
 
 namespace fs = std::filesystem;
@@ -117,12 +118,13 @@ TEST_F(SimCli, ScanWritesAMillionPointPlyRangeImagesAndGroundTruth) {
   ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
   const fs::path d = dir_ / "scan";
   // PLY: the valid points of the default 2064 x 1544 scanner, at least 1 M.
-  const auto points = fettle::sim::read_ply(d / "view0.ply");
-  ASSERT_TRUE(points.ok()) << points.error().message;
-  EXPECT_GE(points->size(), 1'000'000u);
-  EXPECT_LE(points->size(), std::size_t{2064} * 1544);
-  for (std::size_t i = 0; i < points->size(); i += 50'000) {
-    const auto& p = (*points)[i];
+  const auto cloud = fettle::read_ply(d / "view0.ply");
+  ASSERT_TRUE(cloud.ok()) << cloud.error().message;
+  const auto& points = cloud->points;
+  EXPECT_GE(points.size(), 1'000'000u);
+  EXPECT_LE(points.size(), std::size_t{2064} * 1544);
+  for (std::size_t i = 0; i < points.size(); i += 50'000) {
+    const auto& p = points[i];
     EXPECT_TRUE(p.allFinite());
     EXPECT_GT(p.z(), 300.0f);  // camera frame, mm: the scene is ~600 mm away
     EXPECT_LT(p.z(), 700.0f);

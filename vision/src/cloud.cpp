@@ -13,6 +13,7 @@
 #include <pcl/common/io.h>
 
 #include "fettle/core/error.hpp"
+#include "fettle/core/ply.hpp"
 #include "cloud_readers.hpp"
 
 namespace fettle::vision {
@@ -136,17 +137,11 @@ Cloud load_cloud(const std::filesystem::path& file) {
 
 void save_ply(const std::filesystem::path& file, const Cloud& cloud) {
   const bool normals = cloud.has_normals();
-  std::ofstream out(file, std::ios::binary);
-  if (!out) throw UserError(file.string() + ": cannot write (check the directory exists and is writable)");
-  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << cloud.size()
-      << "\nproperty float x\nproperty float y\nproperty float z\n";
-  if (normals) out << "property float nx\nproperty float ny\nproperty float nz\n";
-  out << "end_header\n";
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    out.write(reinterpret_cast<const char*>(cloud.points[i].data()), 3 * sizeof(float));
-    if (normals) out.write(reinterpret_cast<const char*>(cloud.normals[i].data()), 3 * sizeof(float));
-  }
-  if (!out) throw UserError(file.string() + ": write failed (disk full?)");
+  const std::vector<std::string> names = normals ? std::vector<std::string>{"nx", "ny", "nz"} : std::vector<std::string>{};
+  const std::span<const float> values =
+      normals ? std::span<const float>(cloud.normals.front().data(), 3 * cloud.normals.size()) : std::span<const float>();
+  if (auto st = write_ply(file, cloud.points, names, values, "fettle vision cloud, millimetres"); !st)
+    throw UserError(st.error().message + " (check the directory exists and is writable)");
 }
 
 Cloud to_cloud(const OrganizedCloud& organized) {

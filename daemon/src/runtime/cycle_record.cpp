@@ -10,26 +10,20 @@
 #include <boost/asio/post.hpp>
 
 #include "fettle/core/atomic_file.hpp"
+#include "fettle/core/ply.hpp"
 #include "runtime_impl.hpp"
 
 namespace fettle::daemon {
 
 namespace {
 
-/// Binary little-endian PLY of points with one float property (e.g. a deviation in mm).
-Status write_scalar_ply(const fs::path& path, const std::vector<Eigen::Vector3f>& points,
-                        const std::vector<float>& values, const std::string& property) {
-  std::string out = "ply\nformat binary_little_endian 1.0\ncomment fettle cycle record, mm\nelement vertex " +
-                    std::to_string(points.size()) + "\nproperty float x\nproperty float y\nproperty float z\n";
-  const bool with_values = values.size() == points.size() && !property.empty();
-  if (with_values) out += "property float " + property + "\n";
-  out += "end_header\n";
-  out.reserve(out.size() + points.size() * 16);
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    out.append(reinterpret_cast<const char*>(points[i].data()), 3 * sizeof(float));
-    if (with_values) out.append(reinterpret_cast<const char*>(&values[i]), sizeof(float));
-  }
-  return write_file_atomic(path, out);
+/// Points with their deviation from the template (mm) as the property deviation_mm; the points
+/// alone when the deviations do not match them.
+Status write_deviation_ply(const fs::path& path, const std::vector<Eigen::Vector3f>& points,
+                           const std::vector<float>& deviation_mm) {
+  const bool with = deviation_mm.size() == points.size();
+  return write_ply(path, points, with ? std::vector<std::string>{"deviation_mm"} : std::vector<std::string>{},
+                   with ? std::span<const float>(deviation_mm) : std::span<const float>(), "fettle cycle record, mm");
 }
 
 json timings_json(const std::vector<StepTiming>& t) {
@@ -62,7 +56,7 @@ json verification_json(const VerificationResult& v, Cycle& c, const std::string&
                        {"verdict", to_string(r.verdict)},
                        {"reason", r.reason}});
     const auto name = prefix + "deviation_" + safe_name(r.name) + ".ply";
-    if (write_scalar_ply(c.summary.dir / name, r.roi_points_part, r.residual_mm, "deviation_mm"))
+    if (write_deviation_ply(c.summary.dir / name, r.roi_points_part, r.residual_mm))
       c.files.push_back(name);
   }
   json gouge = nullptr;
@@ -155,7 +149,7 @@ asio::awaitable<void> Runtime::Impl::write_process_outputs(Cycle& c, const Proce
       fs::remove_all(tmp, ec);
       const auto& insp = copy->inspection;
       const auto name = prefix + "fused_part.ply";
-      if (auto st = write_scalar_ply(dir / name, insp.scene_part.points, insp.deviation_mm, "deviation_mm"); st)
+      if (auto st = write_deviation_ply(dir / name, insp.scene_part.points, insp.deviation_mm); st)
         w.files.push_back(name);
       copy.reset();
       ::malloc_trim(0);  // the copy and the encoders' buffers (about 55 MB) back to the system, not kept in an arena

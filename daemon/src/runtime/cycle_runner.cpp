@@ -10,7 +10,7 @@
 #include <boost/asio/detached.hpp>
 #include <boost/asio/post.hpp>
 
-#include "fettle/drivers/camera_ply.hpp"
+#include "fettle/core/ply.hpp"
 #include "runtime_impl.hpp"
 
 namespace fettle::daemon {
@@ -164,7 +164,7 @@ asio::awaitable<bool> Runtime::Impl::capture(Cycle& c, int position, std::vector
     const auto file = c.summary.dir / (stem + "_" + std::to_string(position) + ".ply");
     auto cloud = std::make_shared<OrganizedCloud>(v.cloud);
     asio::post(workers, [file, cloud, this, self = shared_from_this()] {
-      auto st = write_via_temp(file, [&](const fs::path& tmp) { return drivers::write_ply(tmp, *cloud); });
+      auto st = write_via_temp(file, [&](const fs::path& tmp) { return write_ply(tmp, *cloud); });
       if (!st) log->warn("record {}: {}", file.string(), st.error().message);
     });
     c.files.push_back(file.filename().string());

@@ -1,23 +1,16 @@
 #pragma once
-// Trajectory files, compatible with the simulator's reader (fettle::sim::read_trajectory):
-//   trajectory.json {"part_id", "segment_regions": [...], "points": [{"x","y","z","qw","qx","qy",
-//                    "qz","speed_mm_s","spindle_rpm","segment","kind"}...]}
-//   trajectory.csv  header x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment,kind
-// Poses are T_base_tool (TCP), mm. preview.png: top and side views of the part cloud coloured by
-// excess height with the tool path drawn.
+// The planner's output files: trajectory.json and trajectory.csv (the format is core's,
+// fettle/core/trajectory_io.hpp, read back by fettle-sim and the CLI), and preview.png: top and
+// side views of the part cloud coloured by excess height with the tool path drawn.
 #include <filesystem>
 #include <vector>
 
 #include "fettle/core/geometry.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/core/trajectory.hpp"
+#include "fettle/core/trajectory_io.hpp"
 
 namespace fettle::planning {
-
-Status write_trajectory_json(const std::filesystem::path& path, const Trajectory& trajectory);
-Status write_trajectory_csv(const std::filesystem::path& path, const Trajectory& trajectory);
-/// Reads trajectory.json back (throws UserError naming the file and the point on bad input).
-Trajectory read_trajectory_json(const std::filesystem::path& path);
 
 struct PreviewPoint {
   Vec3 position_base_mm;

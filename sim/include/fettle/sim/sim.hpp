@@ -22,6 +22,7 @@
 #include "fettle/core/geometry.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/core/trajectory.hpp"
+#include "fettle/core/trajectory_io.hpp"
 
 namespace fettle::sim {
 
@@ -241,13 +242,11 @@ OrganizedCloud to_cloud(const RangeImageF32& range, const CameraIntrinsics& intr
 // ---------------------------------------------------------------------------------------------
 // Files
 
-/// PLY (binary little endian, float x y z, mm) of the valid points; `T` maps them first.
-Status write_ply(const std::filesystem::path& path, const OrganizedCloud& cloud,
-                 const Transform& T = Transform::Identity());
+/// PLY (core's format, fettle/core/ply.hpp) of the valid points; `T` maps them first.
+Status write_valid_points_ply(const std::filesystem::path& path, const OrganizedCloud& cloud,
+                              const Transform& T = Transform::Identity());
 /// PCD (binary, organized width x height, NaN invalid, mm).
 Status write_pcd(const std::filesystem::path& path, const OrganizedCloud& cloud);
-/// Reads back a PLY written by write_ply (for tests and tools).
-Result<std::vector<Eigen::Vector3f>> read_ply(const std::filesystem::path& path);
 /// Range images: <stem>.c16 raw uint16 + <stem>.c16.json (width, height, scale, offset,
 /// invalid value, pixel format "Coord3D_C16"), <stem>.f32 raw float32 + JSON.
 Status write_range_images(const std::filesystem::path& dir, const std::string& stem, const Capture& capture);
@@ -269,12 +268,9 @@ struct CellLimits {
   double max_spindle_rpm = 20000.0;
 };
 
-/// Trajectory files: JSON {"part_id", "segment_regions": [...], "points": [{"x","y","z","qw","qx",
-/// "qy","qz","speed_mm_s","spindle_rpm","segment","kind"}...]} or CSV with the header
-/// x,y,z,qw,qx,qy,qz,speed_mm_s,spindle_rpm,segment[,kind]. Poses are T_base_tool (TCP), mm.
-/// Throws UserError with file:line for unreadable files.
-Trajectory read_trajectory(const std::filesystem::path& path);
-Status write_trajectory_json(const std::filesystem::path& path, const Trajectory& trajectory);
+/// Trajectory files (JSON or CSV): core's format, fettle/core/trajectory_io.hpp.
+using fettle::read_trajectory;
+using fettle::write_trajectory_json;
 /// Checks a trajectory before execution: finite values, unit quaternions, points inside the
 /// cell, speeds and spindle speeds within limits. The error names the first bad point.
 Status validate_trajectory(const Trajectory& trajectory, const CellLimits& limits);
