@@ -48,25 +48,6 @@ void cylinder(TableReader& t, BodyCylinder& c) {
   if (c.top_z_mm <= c.base_z_mm) t.error("top_z_mm", "must be above base_z_mm (" + fmt(c.base_z_mm) + ")");
 }
 
-/// Top of the body at (x, y) from blocks and cylinders; NaN where there is no body.
-double body_top(const PartGeometry& g, double x, double y) {
-  double top = std::nan("");
-  auto take = [&](double z) { top = std::isnan(top) ? z : std::max(top, z); };
-  for (const auto& b : g.blocks) {
-    if (x < b.min_mm[0] || x > b.max_mm[0] || y < b.min_mm[1] || y > b.max_mm[1]) continue;
-    const double cx = 0.5 * (b.min_mm[0] + b.max_mm[0]);
-    const double cy = 0.5 * (b.min_mm[1] + b.max_mm[1]);
-    take(b.max_mm[2] + std::tan(b.top_slope_deg[0] * std::numbers::pi / 180.0) * (x - cx) +
-         std::tan(b.top_slope_deg[1] * std::numbers::pi / 180.0) * (y - cy));
-  }
-  auto cyl = [&](const BodyCylinder& c) {
-    if (std::hypot(x - c.center_mm[0], y - c.center_mm[1]) <= c.radius_mm) take(c.top_z_mm);
-  };
-  for (const auto& c : g.cylinders) cyl(c);
-  for (const auto& r : g.ring_flashes) cyl(r.cylinder);
-  return top;
-}
-
 std::string where_xy(double x, double y) { return "(" + fmt(x) + ", " + fmt(y) + ")"; }
 
 /// Regions of the recipe: their ROIs must touch the body and features must name them.
@@ -199,7 +180,7 @@ void read_geometry(TableReader& root, PartGeometry& g) {
   });
   // Features standing on the body must stand on it.
   auto on_body = [&](TableReader& r, std::string_view key, double x, double y) {
-    if (std::isnan(body_top(g, x, y)))
+    if (std::isnan(config::nominal_top_z_mm(g, x, y)))
       r.error(key, "point " + where_xy(x, y) + " is off the body (no block or cylinder under it)");
   };
   t->tables("risers", [&](TableReader& r, std::size_t i) {
@@ -234,3 +215,25 @@ void read_geometry(TableReader& root, PartGeometry& g) {
 }
 
 }  // namespace fettle::config::detail
+
+namespace fettle::config {
+
+double nominal_top_z_mm(const PartGeometry& g, double x, double y) {
+  double top = std::nan("");
+  auto take = [&](double z) { top = std::isnan(top) ? z : std::max(top, z); };
+  for (const auto& b : g.blocks) {
+    if (x < b.min_mm[0] || x > b.max_mm[0] || y < b.min_mm[1] || y > b.max_mm[1]) continue;
+    const double cx = 0.5 * (b.min_mm[0] + b.max_mm[0]);
+    const double cy = 0.5 * (b.min_mm[1] + b.max_mm[1]);
+    take(b.max_mm[2] + std::tan(b.top_slope_deg[0] * std::numbers::pi / 180.0) * (x - cx) +
+         std::tan(b.top_slope_deg[1] * std::numbers::pi / 180.0) * (y - cy));
+  }
+  auto cyl = [&](const BodyCylinder& c) {
+    if (std::hypot(x - c.center_mm[0], y - c.center_mm[1]) <= c.radius_mm) take(c.top_z_mm);
+  };
+  for (const auto& c : g.cylinders) cyl(c);
+  for (const auto& r : g.ring_flashes) cyl(r.cylinder);
+  return top;
+}
+
+}  // namespace fettle::config

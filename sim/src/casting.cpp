@@ -203,24 +203,7 @@ double HeightField::distance(const Vec3& p, double max_search_mm) const {
 // ---------------------------------------------------------------------------------------------
 // CastingModel
 
-double CastingModel::nominal_top(double x, double y) const {
-  const auto& g = recipe.geometry;
-  double top = std::nan("");
-  auto take = [&](double z) { top = std::isnan(top) ? z : std::max(top, z); };
-  for (const auto& b : g.blocks) {
-    if (x < b.min_mm[0] || x > b.max_mm[0] || y < b.min_mm[1] || y > b.max_mm[1]) continue;
-    const double cx = 0.5 * (b.min_mm[0] + b.max_mm[0]);
-    const double cy = 0.5 * (b.min_mm[1] + b.max_mm[1]);
-    take(b.max_mm[2] + std::tan(deg_to_rad(b.top_slope_deg[0])) * (x - cx) +
-         std::tan(deg_to_rad(b.top_slope_deg[1])) * (y - cy));
-  }
-  auto cyl = [&](const config::BodyCylinder& c) {
-    if (std::hypot(x - c.center_mm[0], y - c.center_mm[1]) <= c.radius_mm) take(c.top_z_mm);
-  };
-  for (const auto& c : g.cylinders) cyl(c);
-  for (const auto& r : g.ring_flashes) cyl(r.cylinder);
-  return top;
-}
+double CastingModel::nominal_top(double x, double y) const { return config::nominal_top_z_mm(recipe.geometry, x, y); }
 
 double CastingModel::golden_sdf(const Vec3& p) const {
   const auto& g = recipe.geometry;

@@ -90,4 +90,9 @@ struct PartGeometry {
   std::vector<StraightFlash> straight_flashes;
 };
 
+/// The nominal body's top at (x, y), part frame, mm: the highest of the blocks' (tilted) tops and
+/// the cylinders' (ring flashes' too) over that point; NaN where no body is. The recipe's checks
+/// and the simulator's casting use this one definition.
+double nominal_top_z_mm(const PartGeometry& geometry, double x_mm, double y_mm);
+
 }  // namespace fettle::config
