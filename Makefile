@@ -100,10 +100,13 @@ fuzz: deps
 	tests/fuzz/run $(FUZZ_BUILD_DIR) $(FUZZ_SECONDS)
 
 # fettled through SOAK_CYCLES cycles on the simulated cell with random device faults
-# (fettle-sim soak; ~5 s a cycle on 2 cores). Results in $(BUILD_DIR)/soak/soak.json.
+# (fettle-sim soak; ~5 s a cycle on 2 cores). Results in $(BUILD_DIR)/soak/soak.json; the
+# run's summary.md goes into docs/results.md, pass or fail.
 soak: build
+	rm -f $(BUILD_DIR)/soak/summary.md
 	$(BUILD_DIR)/bin/fettle-sim soak --config config/cell.sim.toml --cycles $(SOAK_CYCLES) \
-	  --fault-rate $(SOAK_FAULT_RATE) --out $(BUILD_DIR)/soak
+	  --fault-rate $(SOAK_FAULT_RATE) --out $(BUILD_DIR)/soak; status=$$?; \
+	  scripts/update-results soak $(BUILD_DIR)/soak/summary.md && exit $$status
 
 demo: build
 	@scripts/demo $(BUILD_DIR)

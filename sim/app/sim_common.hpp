@@ -2,6 +2,7 @@
 // Shared by fettle-sim's scan, grind and evaluate commands.
 #include <chrono>
 #include <cstdio>
+#include <ctime>
 #include <filesystem>
 #include <optional>
 #include <sstream>
@@ -13,6 +14,16 @@
 #include "fettle/sim/sim.hpp"
 
 namespace fettle::sim::app {
+
+/// Now as "YYYY-MM-DD HH:MM UTC", for the summaries the measuring commands write.
+inline std::string utc_now() {
+  const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M UTC", &tm);
+  return buf;
+}
 
 struct ScannerOptions {
   std::filesystem::path cell;  ///< optional cell file: slide.photo_positions_mm and [safety]

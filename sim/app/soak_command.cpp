@@ -302,6 +302,7 @@ class Soak {
     std::uniform_real_distribution<double> coin(0.0, 1.0);
     std::uniform_int_distribution<std::size_t> pick(0, kinds.size() - 1);
     const auto t_all = Clock::now();
+    started_utc_ = fettle::sim::app::utc_now();
     for (int i = 1; i <= a_.cycles; ++i) {
       if (!alive()) return finish("fettled is gone before cycle " + std::to_string(i) + ": " + tail_log());
       if (!recover())
@@ -314,7 +315,8 @@ class Soak {
       drain_journal();
       print(o);
     }
-    std::printf("soak: %d cycles in %.0f s\n", a_.cycles, std::chrono::duration<double>(Clock::now() - t_all).count());
+    minutes_ = std::chrono::duration<double>(Clock::now() - t_all).count() / 60.0;
+    std::printf("soak: %d cycles in %.0f s\n", a_.cycles, minutes_ * 60.0);
     return finish("");
   }
 
@@ -780,6 +782,45 @@ class Soak {
       problems_.push_back("writing " + (a_.out / "soak.json").string() + ": " + st.error().message);
     cell_->stop();
 
+    // summary.md: the run as docs/results.md's soak section (`make soak` puts it there with
+    // scripts/update-results, pass or fail), so the figures there are the ones a run measured.
+    {
+      std::ostringstream m;
+      char buf[1024];
+      m << "## Soak: `make soak` (`fettle-sim soak`)\n\n";
+      std::snprintf(buf, sizeof buf,
+                    "%s, %d cycles in %.1f min, a random device fault in %.0f %% of them (seed %llu), camera %s, "
+                    "robot x%.0f. Result: **%s**.\n\n",
+                    started_utc_.c_str(), n, minutes_, 100.0 * a_.fault_rate, static_cast<unsigned long long>(a_.seed),
+                    a_.resolution.c_str(), a_.speedup, problems_.empty() ? "PASSED" : "FAILED");
+      m << buf << "| check | result |\n| --- | --- |\n";
+      m << "| fettled ran throughout, exit status on SIGTERM | " << (ran_throughout ? "yes" : "no") << ", " << ended_how_
+        << " |\n";
+      m << "| cycles started / ended with a complete record | " << journal_->started() << " / "
+        << journal_->records_checked() << " |\n";
+      std::ostringstream devices;
+      for (const auto& [device, reached] : reached_by_device)
+        devices << (devices.tellp() > 0 ? ", " : "") << device << " " << reached;
+      m << "| injected faults reported at the PLC with their code | " << faults_reported << " of " << faults_injected
+        << " (" << devices.str() << "); " << not_injected << " of " << drawn
+        << " drawn were not injected, their cycle having ended first |\n";
+      m << "| uploads after a validate step / points the robot refused | " << journal_->uploads() << " / "
+        << robot.limit_naks << " |\n";
+      std::snprintf(buf, sizeof buf, "| RSS, warm-up max -> last tenth max | %.0f -> %.0f MB (%+.1f %%, %s) |\n",
+                    static_cast<double>(warm_kb) / 1024.0, static_cast<double>(end_kb) / 1024.0, growth_pct,
+                    a_.max_rss_growth_pct > 0.0 ? ("limit " + pct(a_.max_rss_growth_pct)).c_str() : "not checked");
+      m << buf;
+      std::ostringstream outcomes;
+      for (const auto& [k, v] : by_result) outcomes << (outcomes.tellp() > 0 ? ", " : "") << k << " x" << v;
+      m << "| outcomes | " << outcomes.str() << " |\n";
+      if (!problems_.empty()) {
+        m << "\nProblems:\n\n";
+        for (const auto& p : problems_) m << "- " << p << "\n";
+      }
+      if (auto st = fettle::write_file_atomic(a_.out / "summary.md", m.str()); !st)
+        problems_.push_back("writing " + (a_.out / "summary.md").string() + ": " + st.error().message);
+    }
+
     std::printf("\n== soak summary (%s) ==\n", (a_.out / "soak.json").c_str());
     std::printf("cycles %d; faults drawn %d, injected %d (%d not: their cycle ended first), reported at the PLC with their code %d\n",
                 n, drawn, faults_injected, not_injected, faults_reported);
@@ -820,6 +861,8 @@ class Soak {
   std::vector<CycleOutcome> outcomes_;
   std::vector<std::string> problems_, unexpected_faults_;
   std::size_t log_offset_ = 0;  ///< how far log_warnings_since_last read fettled.log
+  std::string started_utc_;     ///< when the cycles began, for summary.md
+  double minutes_ = 0.0;        ///< how long they took
 };
 
 FETTLE_COMMAND("soak", [](CLI::App& app, const fettle::cli::Common& common) {

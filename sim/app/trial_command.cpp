@@ -198,15 +198,6 @@ struct RunFacts {
   bool pass = false;
 };
 
-std::string utc_now() {
-  const auto t = std::chrono::system_clock::to_time_t(std::chrono::system_clock::now());
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%d %H:%M UTC", &tm);
-  return buf;
-}
-
 /// The run as a Markdown section: `make accuracy` puts it into docs/results.md
 /// (scripts/update-results), so the latest figures there are the ones a command measured.
 std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>& t1,
@@ -217,7 +208,7 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
   m << "## Closed-loop accuracy: `make accuracy` (`fettle-sim trial`)\n\n";
   std::snprintf(buf, sizeof buf, "%s, %zu castings, seeds %s (%s; repeat with `make accuracy ACCURACY_SEEDS=%s`), "
                 "%d x %d views, %.1f min%s. Acceptance: **%s**.\n\n",
-                utc_now().c_str(), f.count, seeds.c_str(),
+                app::utc_now().c_str(), f.count, seeds.c_str(),
                 f.drawn ? ("drawn at run time for `--seeds " + f.seeds_arg + "`").c_str() : "chosen by hand",
                 seeds.c_str(), f.width, f.height, f.minutes,
                 f.biased ? (", the executed path offset by (" + std::to_string(f.path_bias.x()) + ", " +
@@ -339,7 +330,7 @@ int trial(const Args& a) {
     for (const auto& st : out->timings)
       if (st.step == "plan") pms = st.ms;
     plan_ms.push_back(pms);
-    if (auto st = fettle::planning::write_trajectory_json(dir / "trajectory.json", out->trajectory); !st)
+    if (auto st = fettle::write_trajectory_json(dir / "trajectory.json", out->trajectory); !st)
       throw fettle::UserError(st.error().message);
 
     // Grind region by region, each with its own tool.
