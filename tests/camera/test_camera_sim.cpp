@@ -262,6 +262,50 @@ TEST_F(CameraSim, CameraRebootIsSurvived) {
   EXPECT_TRUE(c->stats.reconnected);
 }
 
+// The camera as the cycle sees it (drivers::CameraDevice): configure, activate, capture,
+// deactivate, and activate again; each refusal says why.
+TEST_F(CameraSim, TheGigECameraGoesThroughItsLifecycleAndCapturesOnlyWhenActive) {
+  fd::GigECamera camera(driver_options());
+  EXPECT_EQ(camera.lifecycle(), fd::Lifecycle::unconfigured);
+  const auto early = camera.activate();
+  ASSERT_FALSE(early);
+  EXPECT_EQ(early.error().code, "camera.lifecycle");
+  ASSERT_TRUE(camera.configure());
+  EXPECT_EQ(camera.lifecycle(), fd::Lifecycle::inactive);
+  const auto inactive = camera.capture();
+  ASSERT_FALSE(inactive.ok());
+  EXPECT_EQ(inactive.error().code, "camera.inactive");
+  ASSERT_TRUE(camera.activate()) << camera.last_error().message;
+  EXPECT_EQ(camera.lifecycle(), fd::Lifecycle::active);
+  EXPECT_EQ(camera.info().width, small_model().width);
+  auto c = camera.capture();
+  ASSERT_TRUE(c.ok()) << c.error().message;
+  EXPECT_GT(check_geometry(c->cloud, scene_, 0.0), 2000u);
+  camera.deactivate();
+  EXPECT_EQ(camera.lifecycle(), fd::Lifecycle::inactive);
+  EXPECT_EQ(camera.capture().error().code, "camera.inactive");
+  ASSERT_TRUE(camera.activate()) << camera.last_error().message;  // the control channel was given back
+  EXPECT_TRUE(camera.capture().ok());
+}
+
+TEST(CameraSimOpen, AGigECameraThatCannotBeOpenedStaysInactiveAndSaysWhy) {
+  auto o = driver_options();
+  o.address.clear();
+  fd::GigECamera nowhere(o);
+  const auto bad = nowhere.configure();
+  ASSERT_FALSE(bad);
+  EXPECT_EQ(bad.error().code, "camera.config");
+  EXPECT_EQ(nowhere.lifecycle(), fd::Lifecycle::unconfigured);
+  fd::GigECamera absent(driver_options());  // no simulated camera runs in this test
+  ASSERT_TRUE(absent.configure());
+  const auto st = absent.activate();
+  ASSERT_FALSE(st);
+  EXPECT_EQ(st.error().code, "camera.unavailable");
+  EXPECT_THAT(st.error().message, HasSubstr("powered"));
+  EXPECT_EQ(absent.lifecycle(), fd::Lifecycle::inactive);
+  EXPECT_EQ(absent.last_error().code, "camera.unavailable");
+}
+
 TEST(CameraSimOpen, NoCameraAtTheAddressIsADeviceErrorSayingWhatToCheck) {
   auto o = driver_options();
   try {

@@ -189,6 +189,40 @@ TEST_F(RobotLinkTest, HelloMakesTheLinkReady) {
   EXPECT_EQ(states_.back(), RobotState::ready);
 }
 
+// The link as the cycle sees it (drivers::RobotDevice): configure checks the options,
+// activate connects, deactivate closes; the link's own state follows.
+TEST_F(RobotLinkTest, TheLinkGoesThroughTheDeviceLifecycle) {
+  RobotLink link(io_, link_options());
+  fettle::drivers::RobotDevice& robot = link;
+  EXPECT_EQ(robot.lifecycle(), fettle::drivers::Lifecycle::unconfigured);
+  EXPECT_EQ(robot.activate().error().code, "robot.lifecycle");
+  ASSERT_TRUE(robot.configure());
+  EXPECT_EQ(robot.lifecycle(), fettle::drivers::Lifecycle::inactive);
+  EXPECT_EQ(robot.state(), RobotState::disconnected);
+  ASSERT_TRUE(robot.activate());
+  EXPECT_EQ(robot.lifecycle(), fettle::drivers::Lifecycle::active);
+  ASSERT_TRUE(run_until([&] { return robot.state() == RobotState::ready; })) << to_string(robot.state());
+  robot.deactivate();
+  EXPECT_EQ(robot.lifecycle(), fettle::drivers::Lifecycle::inactive);
+  EXPECT_EQ(robot.state(), RobotState::disconnected);
+}
+
+TEST_F(RobotLinkTest, ConfigureRefusesOptionsThatCannotWorkNamingTheKey) {
+  auto o = link_options();
+  o.port = 0;
+  RobotLink no_port(io_, o);
+  const auto st = no_port.configure();
+  ASSERT_FALSE(st);
+  EXPECT_EQ(st.error().code, "robot.config");
+  EXPECT_NE(st.error().message.find("[robot] port 0"), std::string::npos) << st.error().message;
+  EXPECT_EQ(no_port.last_error().code, "robot.config");
+  EXPECT_EQ(no_port.lifecycle(), fettle::drivers::Lifecycle::unconfigured);
+  o = link_options();
+  o.reply_timeout_ms = 0;
+  RobotLink no_timeout(io_, o);
+  EXPECT_EQ(no_timeout.configure().error().code, "robot.config");
+}
+
 TEST_F(RobotLinkTest, HelloWithWrongCellIsRefused) {
   sim_.reset();
   RobotSimOptions o;

@@ -43,10 +43,15 @@ void Runtime::Impl::setup() {
       std::make_unique<plc::Link>(io.get_executor(), plc::LinkOptions::from_config(cell), [weak](const plc::Event& e) {
         if (auto self = weak.lock()) self->on_plc(e);
       });
-  robot = std::make_unique<drivers::RobotLink>(io, drivers::RobotLinkOptions::from_config(cell.robot));
+  robot = options.make_robot ? options.make_robot(io, cell)
+                             : std::make_unique<drivers::RobotLink>(io, drivers::RobotLinkOptions::from_config(cell.robot));
+  if (auto st = robot->configure(); !st) throw UserError(st.error().message);
   robot->on_state([weak](drivers::RobotState s, const Error& cause) {
     if (auto self = weak.lock()) self->on_robot_state(s, cause);
   });
+  camera = options.make_camera ? options.make_camera(cell)
+                               : std::make_unique<drivers::GigECamera>(drivers::camera_options(cell.camera));
+  if (auto st = camera->configure(); !st) throw UserError(st.error().message);
   can = drivers::make_spindle_transport(io, cell.spindle);
   spindle = std::make_unique<drivers::SpindleDrive>(io, can, drivers::SpindleOptions::from_config(cell.spindle));
   spindle->on_event([weak](const drivers::SpindleEvent& e) {
@@ -54,7 +59,7 @@ void Runtime::Impl::setup() {
   });
   (void)plc_link->set_state(machine.state());
   plc_link->start();
-  robot->start();
+  if (auto st = robot->activate(); !st) throw UserError(st.error().message);
   start_spindle();
   open_camera();
   publish_state();
@@ -74,15 +79,13 @@ void Runtime::Impl::start_spindle() {
 void Runtime::Impl::open_camera() {
   if (camera_open->load()) return;
   asio::post(camera_thread, [this, self = shared_from_this()] {
-    if (camera) return;
-    try {
-      auto o = drivers::camera_options(cell.camera);
-      camera = std::make_shared<drivers::Camera>(o);
-      camera_open->store(true);
-      log->info("camera open: {}", camera->info().to_string());
-    } catch (const std::exception& e) {
-      log->warn("camera {} not available yet: {}", cell.camera.address, e.what());
+    if (camera->lifecycle() == drivers::Lifecycle::active) return;
+    if (auto st = camera->activate(); !st) {
+      log->warn("camera {} not available yet: {}", cell.camera.address, st.error().message);
+      return;
     }
+    camera_open->store(true);
+    log->info("camera open: {}", camera->info().to_string());
   });
 }
 
@@ -394,7 +397,7 @@ void Runtime::Impl::shutdown(std::function<void()> done) {
                         self->robot ? drivers::to_string(self->robot->state()) : "not configured",
                         self->spindle ? self->spindle->status().velocity_rpm : 0.0);
         if (self->plc_link) self->plc_link->stop();
-        if (self->robot) self->robot->shutdown();
+        if (self->robot) self->robot->deactivate();
         self->workers.stop();
         self->camera_thread.stop();
         self->record_writer.stop();

@@ -134,14 +134,13 @@ asio::awaitable<bool> Runtime::Impl::capture(Cycle& c, int position, std::vector
       [this](std::function<void(Result<drivers::CameraCapture>)> done) {
         asio::post(camera_thread, [this, self = shared_from_this(), done] {
           Result<drivers::CameraCapture> result = Error{"camera.unavailable", "not opened"};
-          try {
-            if (!camera) {
-              camera = std::make_shared<drivers::Camera>(drivers::camera_options(cell.camera));
-              camera_open->store(true);
-            }
+          if (camera->lifecycle() == drivers::Lifecycle::active) {
             result = camera->capture();
-          } catch (const std::exception& e) {
-            result = Error{"camera.unavailable", "camera " + cell.camera.address + ": " + e.what()};
+          } else if (auto st = camera->activate(); !st) {
+            result = st.error();
+          } else {
+            camera_open->store(true);
+            result = camera->capture();
           }
           asio::post(io, [done, result = std::move(result)]() mutable { done(std::move(result)); });
         });

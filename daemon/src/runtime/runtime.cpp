@@ -10,6 +10,7 @@ Runtime::~Runtime() {
   if (impl_->plc_link) impl_->plc_link->stop();
   impl_->workers.join();
   impl_->camera_thread.join();
+  if (impl_->camera) impl_->camera->deactivate();  // its threads are gone: nothing captures any more
   impl_->record_writer.join();
 }
 

@@ -143,10 +143,10 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   std::optional<config::CalibrationFile> calibration;
 
   std::unique_ptr<plc::Link> plc_link;
-  std::unique_ptr<drivers::RobotLink> robot;
+  std::unique_ptr<drivers::RobotDevice> robot;
   std::shared_ptr<canopen::CanTransport> can;
   std::unique_ptr<drivers::SpindleDrive> spindle;
-  std::shared_ptr<drivers::Camera> camera;  ///< camera thread only
+  std::unique_ptr<drivers::CameraDevice> camera;  ///< configured at setup; then the camera thread's only
   std::shared_ptr<std::atomic<bool>> camera_open = std::make_shared<std::atomic<bool>>(false);
 
   PackmlMachine machine;

@@ -652,6 +652,36 @@ RobotLink::~RobotLink() {
   impl_->close_socket();
 }
 
+Status RobotLink::configure() {
+  if (lifecycle_ != Lifecycle::unconfigured) return {};
+  const auto& o = impl_->opts_;
+  auto refuse = [&](const std::string& why) {
+    impl_->last_error_ = Error{"robot.config", "[robot] " + why};
+    return Status{impl_->last_error_};
+  };
+  if (o.address.empty()) return refuse("address is empty: set the robot controller's IPv4 address");
+  if (o.port <= 0 || o.port > 65535) return refuse("port " + std::to_string(o.port) + " is not 1-65535");
+  if (o.connect_timeout_ms <= 0 || o.reply_timeout_ms <= 0 || o.run_timeout_ms <= 0 || o.ping_period_ms <= 0)
+    return refuse("connect_timeout_ms, reply_timeout_ms, run_timeout_ms and ping_period_ms must be above 0");
+  lifecycle_ = Lifecycle::inactive;
+  return {};
+}
+
+Status RobotLink::activate() {
+  if (lifecycle_ == Lifecycle::active) return {};
+  if (lifecycle_ == Lifecycle::unconfigured)
+    return Error{"robot.lifecycle", "robot " + impl_->opts_.address + ": activate() before configure()"};
+  impl_->start();
+  lifecycle_ = Lifecycle::active;
+  return {};
+}
+
+void RobotLink::deactivate() {
+  if (lifecycle_ != Lifecycle::active) return;
+  impl_->shutdown();
+  lifecycle_ = Lifecycle::inactive;
+}
+
 void RobotLink::start() { impl_->start(); }
 void RobotLink::shutdown() { impl_->shutdown(); }
 void RobotLink::upload(const Trajectory& trajectory, Handler done) { impl_->upload(trajectory, std::move(done)); }

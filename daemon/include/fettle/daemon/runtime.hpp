@@ -29,6 +29,11 @@
 #include "fettle/daemon/faults.hpp"
 #include "fettle/drivers/packml.hpp"
 
+namespace fettle::drivers {
+class CameraDevice;
+class RobotDevice;
+}  // namespace fettle::drivers
+
 namespace fettle::daemon {
 
 struct RuntimeOptions {
@@ -40,6 +45,11 @@ struct RuntimeOptions {
   bool keep_captures = true;
   /// Called on the loop thread after every PackML state change (e.g. sd_notify STATUS=).
   std::function<void(packml::State, const std::string& status_line)> on_state;
+  /// The camera the cycle captures with; empty: the GigE Vision camera of [camera]
+  /// (drivers::GigECamera). Tests give a scripted one.
+  std::function<std::unique_ptr<drivers::CameraDevice>(const config::CellConfig&)> make_camera;
+  /// The robot controller; empty: the TCP line protocol link of [robot] (drivers::RobotLink).
+  std::function<std::unique_ptr<drivers::RobotDevice>(boost::asio::io_context&, const config::CellConfig&)> make_robot;
 };
 
 /// A snapshot for the control socket and tests.

@@ -10,6 +10,10 @@
 // When Aravis reports control-lost (the heartbeat found another controller, or the camera
 // rebooted), and after a capture that got no complete frame, the next capture() tears down
 // and recreates the camera and its stream.
+//
+// The cycle uses the camera as a device with the cell's common lifecycle (device.hpp):
+//   GigECamera cam(camera_options(cell.camera));
+//   cam.configure();  cam.activate();  cam.capture();  cam.deactivate();   // errors as values
 #include <cstdint>
 #include <memory>
 #include <optional>
@@ -20,6 +24,7 @@
 #include "fettle/core/cloud.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/drivers/camera_decode.hpp"
+#include "fettle/drivers/device.hpp"
 
 namespace fettle::drivers {
 
@@ -102,6 +107,41 @@ class Camera {
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+};
+
+/// The cell's 3D camera as a device (device.hpp): what the cycle uses. One capture at a time,
+/// from one thread.
+class CameraDevice : public Device {
+ public:
+  [[nodiscard]] std::string_view kind() const override { return "camera"; }
+  /// One organized cloud (mm, camera frame). Not active: the error "camera.inactive".
+  virtual Result<CameraCapture> capture() = 0;
+  /// What the camera says about itself; empty until it was active.
+  [[nodiscard]] virtual CameraInfo info() const = 0;
+};
+
+/// The GigE Vision camera (Camera) as a CameraDevice: configure() checks the options,
+/// activate() opens the camera (a DeviceError becomes last_error()), deactivate() closes it.
+class GigECamera final : public CameraDevice {
+ public:
+  explicit GigECamera(CameraOptions options);
+  ~GigECamera() override;
+
+  Status configure() override;
+  Status activate() override;
+  void deactivate() override;
+  [[nodiscard]] Lifecycle lifecycle() const override { return lifecycle_; }
+  [[nodiscard]] const Error& last_error() const override { return last_error_; }
+  Result<CameraCapture> capture() override;
+  [[nodiscard]] CameraInfo info() const override;
+
+ private:
+  Status failed(Error e);
+  CameraOptions options_;
+  std::unique_ptr<Camera> camera_;
+  CameraInfo info_;
+  Lifecycle lifecycle_ = Lifecycle::unconfigured;
+  Error last_error_;
 };
 
 /// A camera answering GigE Vision discovery (for `fettle camera discover` only).

@@ -23,6 +23,7 @@
 #include "fettle/config/robot.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/core/trajectory.hpp"
+#include "fettle/drivers/device.hpp"
 
 namespace fettle::drivers {
 
@@ -52,16 +53,36 @@ struct RobotProgress {
   int point_index = 0;  ///< first point of the segment the robot now moves on
 };
 
-class RobotLink {
+/// The robot controller as a device (device.hpp): what the cycle uses. activate() starts
+/// connecting; the link's state (ready, running, ...) and on_state() say where it is.
+class RobotDevice : public Device {
  public:
   using Handler = std::function<void(Status)>;
   using StateHandler = std::function<void(RobotState, const Error& cause)>;
+
+  [[nodiscard]] std::string_view kind() const override { return "robot"; }
+  virtual void upload(const Trajectory& trajectory, Handler done) = 0;
+  virtual void run(Handler done) = 0;
+  virtual void stop(Handler done) = 0;
+  virtual void reset(Handler done) = 0;
+  [[nodiscard]] virtual RobotState state() const = 0;
+  virtual void on_state(StateHandler h) = 0;
+};
+
+class RobotLink final : public RobotDevice {
+ public:
   using ProgressHandler = std::function<void(const RobotProgress&)>;
 
   RobotLink(boost::asio::io_context& io, RobotLinkOptions options);
-  ~RobotLink();  ///< closes the connection; pending handlers are not called
-  RobotLink(const RobotLink&) = delete;
-  RobotLink& operator=(const RobotLink&) = delete;
+  ~RobotLink() override;  ///< closes the connection; pending handlers are not called
+
+  /// Checks the options (address, port, timeouts); an error names the [robot] key.
+  Status configure() override;
+  /// start() once configured.
+  Status activate() override;
+  /// shutdown().
+  void deactivate() override;
+  [[nodiscard]] Lifecycle lifecycle() const override { return lifecycle_; }
 
   /// Connects (and keeps reconnecting while options.reconnect).
   void start();
@@ -71,19 +92,20 @@ class RobotLink {
   /// Uploads a trajectory (state ready or uploaded). `done` gets ok once the robot
   /// acknowledged END (CRC verified); state uploaded. Errors: robot.state,
   /// robot.invalid_point, robot.nak.<code>, robot.reply_timeout, link errors.
-  void upload(const Trajectory& trajectory, Handler done);
+  void upload(const Trajectory& trajectory, Handler done) override;
   /// Runs the uploaded trajectory (state uploaded). `done` gets ok at DONE, or
   /// robot.fault.<code>, robot.stopped, robot.run_timeout, robot.nak.<code>, link errors.
-  void run(Handler done);
+  void run(Handler done) override;
   /// Stops motion / aborts an upload at any time while connected. `done` gets ok at the ACK.
   /// While a STOP is pending, another stop() sends nothing and completes with that STOP.
-  void stop(Handler done);
+  void stop(Handler done) override;
   /// Clears a robot fault (RESET): faulted → ready.
-  void reset(Handler done);
+  void reset(Handler done) override;
 
-  [[nodiscard]] RobotState state() const;
-  /// The cause of the last transition into disconnected or faulted (code empty if none).
-  [[nodiscard]] const Error& last_error() const;
+  [[nodiscard]] RobotState state() const override;
+  /// The cause of the last transition into disconnected or faulted, or of a refused
+  /// configure() (code empty if none).
+  [[nodiscard]] const Error& last_error() const override;
   /// Id and protocol version the robot announced in its HELLO ACK.
   [[nodiscard]] const std::string& robot_id() const;
   /// The id of the last trajectory uploaded (0 if none).
@@ -91,12 +113,13 @@ class RobotLink {
   /// Number of successful HELLOs so far (reconnects show as increments).
   [[nodiscard]] int connections() const;
 
-  void on_state(StateHandler h);
+  void on_state(StateHandler h) override;
   void on_progress(ProgressHandler h);
 
  private:
   struct Impl;
   std::shared_ptr<Impl> impl_;
+  Lifecycle lifecycle_ = Lifecycle::unconfigured;
 };
 
 }  // namespace fettle::drivers
