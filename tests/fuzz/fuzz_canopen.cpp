@@ -95,7 +95,8 @@ void bus_frames(fettle::fuzz::ByteReader& in) {
   hostile->start([](const canopen::CanFrame&) {}, [](const fettle::Error&) {});
   fettle::drivers::SpindleDrive master(io, bus->attach(io, "master"), fettle::drivers::SpindleOptions{});
   master.on_event([](const fettle::drivers::SpindleEvent& e) { (void)fettle::drivers::to_string(e.kind); });
-  master.start([](fettle::Status) {});
+  (void)master.configure();
+  master.activate_async([](fettle::Status) {});
   master.sdo_read(canopen::od::statusword, 0, [](fettle::Result<std::uint32_t>) {});
   int frames = 0;
   while (in.remaining() > 0 && frames++ < 256) {

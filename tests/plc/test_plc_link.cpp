@@ -77,6 +77,49 @@ TEST_F(PlcLinkTest, ComesUpAndReportsTheSlide) {
   EXPECT_EQ(link->status().connects, 1);
 }
 
+// The device lifecycle (device.hpp): configure() checks, activate() starts the thread and the
+// link comes up, deactivate() stops it (no event after), and a second activate() comes up again.
+TEST_F(PlcLinkTest, TheLinkGoesThroughTheDeviceLifecycle) {
+  link = std::make_unique<plc::Link>(events.executor(), fast_options(sim->port()), events.handler());
+  EXPECT_EQ(link->kind(), "plc");
+  EXPECT_EQ(link->lifecycle(), fettle::drivers::Lifecycle::unconfigured);
+  const auto early = link->activate();
+  ASSERT_FALSE(early.ok());
+  EXPECT_EQ(early.error().code, "plc.lifecycle");
+  ASSERT_TRUE(link->configure().ok());
+  ASSERT_TRUE(link->activate().ok());
+  EXPECT_EQ(link->lifecycle(), fettle::drivers::Lifecycle::active);
+  expect_up();
+  link->deactivate();
+  EXPECT_EQ(link->lifecycle(), fettle::drivers::Lifecycle::inactive);
+  EXPECT_FALSE(link->status().connected);
+  const int connects = link->status().connects;
+  ASSERT_TRUE(link->activate().ok());
+  const auto end = std::chrono::steady_clock::now() + kWait;
+  while (std::chrono::steady_clock::now() < end && !(link->status().connects > connects && link->status().up))
+    std::this_thread::sleep_for(milliseconds(5));
+  EXPECT_GT(link->status().connects, connects) << events.dump();
+  EXPECT_TRUE(link->status().up) << events.dump();
+}
+
+TEST_F(PlcLinkTest, ConfigureRefusesOptionsThatCannotWorkNamingTheKey) {
+  auto o = fast_options(sim->port());
+  o.heartbeat_timeout_ms = o.poll_period_ms;
+  link = std::make_unique<plc::Link>(events.executor(), o, events.handler());
+  auto st = link->configure();
+  ASSERT_FALSE(st.ok());
+  EXPECT_EQ(st.error().code, "plc.config");
+  EXPECT_NE(st.error().message.find("[plc] heartbeat_timeout_ms"), std::string::npos) << st.error().message;
+  EXPECT_EQ(link->lifecycle(), fettle::drivers::Lifecycle::unconfigured);
+  o = fast_options(sim->port());
+  o.address = "plc.local";
+  link = std::make_unique<plc::Link>(events.executor(), o, events.handler());
+  st = link->configure();
+  ASSERT_FALSE(st.ok());
+  EXPECT_NE(st.error().message.find("[plc] address 'plc.local' is not an IPv4 address"), std::string::npos)
+      << st.error().message;
+}
+
 TEST_F(PlcLinkTest, HeartbeatRunsBothWays) {
   start_link();
   expect_up();

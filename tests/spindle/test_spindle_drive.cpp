@@ -1,4 +1,7 @@
 // The spindle master against the simulated CiA 402 drive on the in-process CAN bus.
+#include <cmath>
+#include <optional>
+
 #include <gtest/gtest.h>
 
 #include "fettle/core/error.hpp"
@@ -25,11 +28,12 @@ class SpindleDriveTest : public ::testing::Test {
     drive = std::make_unique<fettle::sim::SimulatedSpindleDrive>(io, bus->attach(io, "drive"), so);
     drive->power_on();
     master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master"), o);
+    EXPECT_TRUE(master->configure().ok());
     master->on_event([this](const SpindleEvent& e) { events.push_back(e); });
   }
   void make_started(SpindleOptions o = {}, fettle::sim::SpindleSimOptions so = {}) {
     make(o, so);
-    const Status s = await(io, [&](auto h) { master->start(h); });
+    const Status s = await(io, [&](auto h) { master->activate_async(h); });
     ASSERT_TRUE(s.ok()) << s.error().message;
   }
   /// Heartbeats every 30 ms, lost after 120 ms: heartbeat tests finish quickly.
@@ -81,10 +85,53 @@ TEST_F(SpindleDriveTest, SpinUpCompletesAtSpeedWithinToleranceThenStopReachesSta
   EXPECT_EQ(master->status().state, DriveState::operation_enabled);
   EXPECT_NEAR(master->status().velocity_rpm, 6000.0, 100.0);
   EXPECT_NEAR(drive->velocity_rpm(), 6000.0, 100.0);
-  const Status st = await(io, [&](auto h) { master->stop(h); });
+  const Status st = await(io, [&](auto h) { master->spin_down(h); });
   ASSERT_TRUE(st.ok()) << st.error().message;
   EXPECT_NEAR(drive->velocity_rpm(), 0.0, 100.0);
   EXPECT_EQ(drive->state(), DriveState::ready_to_switch_on);
+}
+
+// The device lifecycle (device.hpp): deactivate() mid-spin sets the target to 0 and keeps the
+// heartbeats going, so the drive ramps down instead of faulting on a lost master; a second
+// activate() configures it again and it spins up.
+TEST_F(SpindleDriveTest, TheDriveGoesThroughTheDeviceLifecycleAndDeactivateRampsItDown) {
+  make();
+  EXPECT_EQ(master->lifecycle(), fettle::drivers::Lifecycle::inactive);
+  make_started(fast_heartbeats());
+  EXPECT_EQ(master->lifecycle(), fettle::drivers::Lifecycle::active);
+  ASSERT_TRUE(await(io, [&](auto h) { master->spin_up(6000, h); }).ok());
+  std::optional<Status> pending;  // a spin-up in progress fails when the drive is deactivated
+  master->spin_up(3000, [&](Status s) { pending = std::move(s); });
+  master->deactivate();
+  ASSERT_TRUE(pending.has_value());
+  EXPECT_EQ(pending->error().code, "spindle.inactive");
+  EXPECT_EQ(master->lifecycle(), fettle::drivers::Lifecycle::inactive);
+  EXPECT_FALSE(master->status().configured);
+  ASSERT_TRUE(run_until(io, [&] { return std::abs(drive->velocity_rpm()) < 1.0; }, 15s)) << drive->velocity_rpm();
+  run_for(io, 300ms);  // longer than the drive's heartbeat timeout: our heartbeat still arrives
+  EXPECT_NE(drive->state(), DriveState::fault);
+  EXPECT_FALSE(master->status().fault);
+  Status s = await(io, [&](auto h) { master->spin_up(2000, h); });
+  EXPECT_EQ(s.error().code, "spindle.not_started");
+  ASSERT_TRUE(await(io, [&](auto h) { master->activate_async(h); }).ok());
+  s = await(io, [&](auto h) { master->spin_up(2000, h); });
+  EXPECT_TRUE(s.ok()) << s.error().message;
+}
+
+TEST_F(SpindleDriveTest, ConfigureRefusesOptionsThatCannotWorkNamingTheKey) {
+  bus = InProcessBus::create();
+  SpindleOptions o;
+  o.heartbeat_producer_ms = 300;
+  o.heartbeat_timeout_ms = 300;
+  master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master"), o);
+  const Status s = master->configure();
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.error().code, "spindle.config");
+  EXPECT_NE(s.error().message.find("[spindle] heartbeat_timeout_ms"), std::string::npos) << s.error().message;
+  EXPECT_EQ(master->last_error().code, "spindle.config");
+  EXPECT_EQ(master->lifecycle(), fettle::drivers::Lifecycle::unconfigured);
+  const Status a = await(io, [&](auto h) { master->activate_async(h); });
+  EXPECT_EQ(a.error().code, "spindle.lifecycle");
 }
 
 TEST_F(SpindleDriveTest, VlModeUsesObject6042) {
@@ -133,6 +180,7 @@ TEST_F(SpindleDriveTest, SdoAnswerForAnotherObjectIsRejected) {
       },
       [](const fettle::Error&) {});
   master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master"), SpindleOptions{});
+  EXPECT_TRUE(master->configure().ok());
   std::optional<fettle::Result<std::uint32_t>> got;
   master->sdo_read(od::statusword, 0, [&](fettle::Result<std::uint32_t> r) { got = std::move(r); });
   ASSERT_TRUE(run_until(io, [&] { return got.has_value(); }));
@@ -146,7 +194,8 @@ TEST_F(SpindleDriveTest, StartWithoutADriveTimesOutWaitingForBootUp) {
   SpindleOptions o;
   o.step_timeout_ms = 150;
   master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master"), o);
-  const Status s = await(io, [&](auto h) { master->start(h); });
+  EXPECT_TRUE(master->configure().ok());
+  const Status s = await(io, [&](auto h) { master->activate_async(h); });
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code, "spindle.timeout");
   EXPECT_NE(s.error().message.find("boot-up"), std::string::npos) << s.error().message;
@@ -157,6 +206,7 @@ TEST_F(SpindleDriveTest, SdoTimeoutWhenNodeDoesNotAnswer) {
   SpindleOptions o;
   o.sdo_timeout_ms = 80;
   master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master"), o);
+  EXPECT_TRUE(master->configure().ok());
   std::optional<fettle::Result<std::uint32_t>> got;
   master->sdo_read(od::statusword, 0, [&](fettle::Result<std::uint32_t> r) { got = std::move(r); });
   ASSERT_TRUE(run_until(io, [&] { return got.has_value(); }));
@@ -168,7 +218,7 @@ TEST_F(SpindleDriveTest, SpinUpIsRefusedBeforeStartAndAboveMaxRpm) {
   make();
   Status s = await(io, [&](auto h) { master->spin_up(1000, h); });
   EXPECT_EQ(s.error().code, "spindle.not_started");
-  const Status started = await(io, [&](auto h) { master->start(h); });
+  const Status started = await(io, [&](auto h) { master->activate_async(h); });
   ASSERT_TRUE(started.ok());
   s = await(io, [&](auto h) { master->spin_up(20000, h); });
   EXPECT_EQ(s.error().code, "spindle.bad_speed");
@@ -194,7 +244,7 @@ TEST_F(SpindleDriveTest, StopCancelsARunningSpinUp) {
   fettle::test::Completion spin;
   master->spin_up(10000, spin.handler());
   run_for(io, 100ms);
-  const Status st = await(io, [&](auto h) { master->stop(h); });
+  const Status st = await(io, [&](auto h) { master->spin_down(h); });
   EXPECT_TRUE(st.ok()) << st.error().message;
   ASSERT_TRUE(spin.done());
   EXPECT_EQ(spin.status->error().code, "spindle.cancelled");
@@ -277,7 +327,8 @@ TEST_F(SpindleDriveTest, ARestartedMasterResetsTheHeartbeatFaultItsAbsenceCaused
   master.reset();  // the process is gone: no more heartbeats
   ASSERT_TRUE(run_until(io, [&] { return drive->state() == DriveState::fault; }));
   master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master again"), o);
-  const Status s = await(io, [&](auto h) { master->start(h); });
+  EXPECT_TRUE(master->configure().ok());
+  const Status s = await(io, [&](auto h) { master->activate_async(h); });
   ASSERT_TRUE(s.ok()) << s.error().message;
   EXPECT_FALSE(master->status().fault);
   EXPECT_EQ(drive->state(), DriveState::switch_on_disabled);
@@ -291,7 +342,8 @@ TEST_F(SpindleDriveTest, AnyOtherFaultFoundAtStartStaysLatchedAndIsNamed) {
   ASSERT_TRUE(run_until(io, [&] { return drive->state() == DriveState::fault; }));
   master.reset();
   master = std::make_unique<SpindleDrive>(io, bus->attach(io, "master again"), SpindleOptions{});
-  const Status s = await(io, [&](auto h) { master->start(h); });
+  EXPECT_TRUE(master->configure().ok());
+  const Status s = await(io, [&](auto h) { master->activate_async(h); });
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code, "spindle.fault");
   EXPECT_NE(s.error().message.find("0x2310"), std::string::npos) << s.error().message;

@@ -152,8 +152,9 @@ TEST_F(SpindleSocketcandTest, MasterSpinsUpTheDriveThroughAnInProcessSocketcandS
   fettle::sim::SimulatedSpindleDrive drive(io, bus->attach(io, "drive"));
   drive.power_on();
   SpindleDrive master(io, open_socketcand(io, "127.0.0.1", server.port(), "can0"), SpindleOptions{});
+  EXPECT_TRUE(master.configure().ok());
   master.on_event([this](const SpindleEvent& e) { events.push_back(e); });
-  Status s = await(io, [&](auto h) { master.start(h); });
+  Status s = await(io, [&](auto h) { master.activate_async(h); });
   ASSERT_TRUE(s.ok()) << s.error().message;
   s = await(io, [&](auto h) { master.spin_up(4000, h); });
   ASSERT_TRUE(s.ok()) << s.error().message;
@@ -174,7 +175,8 @@ TEST_F(SpindleSocketcandTest, ConnectionRefusedIsALinkErrorThatFailsStart) {
     port = a.local_endpoint().port();
   }
   SpindleDrive master(io, open_socketcand(io, "127.0.0.1", port, "can0"), SpindleOptions{});
-  const Status s = await(io, [&](auto h) { master.start(h); });
+  EXPECT_TRUE(master.configure().ok());
+  const Status s = await(io, [&](auto h) { master.activate_async(h); });
   ASSERT_FALSE(s.ok());
   EXPECT_EQ(s.error().code, "spindle.link_lost");
   EXPECT_NE(s.error().message.find("connect"), std::string::npos) << s.error().message;
@@ -190,8 +192,9 @@ TEST_F(SpindleSocketcandTest, MasterDrivesFettleSimSpindleInAnotherProcess) {
   ASSERT_GT(port, 0);
 
   SpindleDrive master(io, open_socketcand(io, "127.0.0.1", port, "can0"), SpindleOptions{});
+  EXPECT_TRUE(master.configure().ok());
   master.on_event([this](const SpindleEvent& e) { events.push_back(e); });
-  Status s = await(io, [&](auto h) { master.start(h); });
+  Status s = await(io, [&](auto h) { master.activate_async(h); });
   ASSERT_TRUE(s.ok()) << s.error().message;
   s = await(io, [&](auto h) { master.spin_up(5000, h); });
   ASSERT_TRUE(s.ok()) << s.error().message;
@@ -205,7 +208,7 @@ TEST_F(SpindleSocketcandTest, MasterDrivesFettleSimSpindleInAnotherProcess) {
   EXPECT_NE(master.status().fault->message.find("0x4310"), std::string::npos) << master.status().fault->message;
   s = await(io, [&](auto h) { master.fault_reset(h); });
   EXPECT_TRUE(s.ok()) << s.error().message;
-  s = await(io, [&](auto h) { master.stop(h); });
+  s = await(io, [&](auto h) { master.spin_down(h); });
   EXPECT_TRUE(s.ok()) << s.error().message;
 }
 
@@ -239,8 +242,9 @@ class SpindleSocketcandBadPeer : public SpindleSocketcandTest {
   /// start() against `peer`, with short timeouts.
   Status start_against(const RawTcpPeer& peer) {
     SpindleDrive master(io, open_socketcand(io, "127.0.0.1", peer.port(), "can0"), quick_options());
+    EXPECT_TRUE(master.configure().ok());
     master.on_event([this](const SpindleEvent& e) { events.push_back(e); });
-    return await(io, [&](auto h) { master.start(h); }, 5000ms);
+    return await(io, [&](auto h) { master.activate_async(h); }, 5000ms);
   }
 };
 

@@ -31,7 +31,7 @@ void Runtime::Impl::watch_loop(Clock::time_point due) {
 void Runtime::Impl::setup() {
   for (const auto& r : cell.cell.recipes) {
     log->info("loading recipe {} ({})", r.plc_recipe_id, r.file.string());
-    recipes[r.plc_recipe_id] = std::make_shared<const LoadedRecipe>(process::load_recipe(r.file));
+    recipes[r.plc_recipe_id] = processing->load_recipe(r.file);
   }
   if (!cell.calibration.file.empty()) calibration = config::load_calibration(cell.calibration.file);
   auto interrupted = records.open();
@@ -39,10 +39,13 @@ void Runtime::Impl::setup() {
   for (const auto& id : *interrupted) log->warn("cycle {} shows as INTERRUPTED (the daemon stopped during it)", id);
 
   auto weak = weak_from_this();
-  plc_link =
-      std::make_unique<plc::Link>(io.get_executor(), plc::LinkOptions::from_config(cell), [weak](const plc::Event& e) {
-        if (auto self = weak.lock()) self->on_plc(e);
-      });
+  auto on_plc_event = [weak](const plc::Event& e) {
+    if (auto self = weak.lock()) self->on_plc(e);
+  };
+  plc_link = options.make_plc
+                 ? options.make_plc(io, cell, on_plc_event)
+                 : std::make_unique<plc::Link>(io.get_executor(), plc::LinkOptions::from_config(cell), on_plc_event);
+  if (auto st = plc_link->configure(); !st) throw UserError(st.error().message);
   robot = options.make_robot ? options.make_robot(io, cell)
                              : std::make_unique<drivers::RobotLink>(io, drivers::RobotLinkOptions::from_config(cell.robot));
   if (auto st = robot->configure(); !st) throw UserError(st.error().message);
@@ -52,13 +55,16 @@ void Runtime::Impl::setup() {
   camera = options.make_camera ? options.make_camera(cell)
                                : std::make_unique<drivers::GigECamera>(drivers::camera_options(cell.camera));
   if (auto st = camera->configure(); !st) throw UserError(st.error().message);
-  can = drivers::make_spindle_transport(io, cell.spindle);
-  spindle = std::make_unique<drivers::SpindleDrive>(io, can, drivers::SpindleOptions::from_config(cell.spindle));
+  spindle = options.make_spindle
+                ? options.make_spindle(io, cell)
+                : std::make_unique<drivers::SpindleDrive>(io, drivers::make_spindle_transport(io, cell.spindle),
+                                                          drivers::SpindleOptions::from_config(cell.spindle));
+  if (auto st = spindle->configure(); !st) throw UserError(st.error().message);
   spindle->on_event([weak](const drivers::SpindleEvent& e) {
     if (auto self = weak.lock()) self->on_spindle(e);
   });
   (void)plc_link->set_state(machine.state());
-  plc_link->start();
+  if (auto st = plc_link->activate(); !st) throw UserError(st.error().message);
   if (auto st = robot->activate(); !st) throw UserError(st.error().message);
   start_spindle();
   open_camera();
@@ -68,7 +74,7 @@ void Runtime::Impl::setup() {
 
 void Runtime::Impl::start_spindle() {
   if (spindle->status().configured) return;
-  spindle->start([this, self = shared_from_this()](Status st) {
+  spindle->activate_async([this, self = shared_from_this()](Status st) {
     if (!st)
       log->warn("spindle drive not ready: {} ({}); retried at the next Reset", st.error().message, st.error().code);
     else
@@ -228,7 +234,7 @@ asio::awaitable<void> Runtime::Impl::stop_spindle() {
   if (spindle->status().fault) co_return;  // a faulted drive has no torque; never re-enabled here
   if (spindle->status().target_rpm == 0.0 && std::abs(spindle->status().velocity_rpm) < 1.0) co_return;
   auto st = co_await await_op<Status>(
-      nullptr, [this](std::function<void(Status)> done) { spindle->stop(done); },
+      nullptr, [this](std::function<void(Status)> done) { spindle->spin_down(done); },
       milliseconds(cell.spindle.spin_up_timeout_ms + 1000));
   if (!st || !*st) log->warn("spindle stop: {}", st ? st->error().message : "timeout");
 }
@@ -273,7 +279,7 @@ asio::awaitable<void> Runtime::Impl::reset_devices() {
   co_await clear_devices();
   if (spindle && !spindle->status().configured) {
     auto st = co_await await_op<Status>(
-        nullptr, [this](std::function<void(Status)> d) { spindle->start(d); }, milliseconds(5000));
+        nullptr, [this](std::function<void(Status)> d) { spindle->activate_async(d); }, milliseconds(5000));
     if (!st || !*st) log->warn("spindle not ready: {}", st ? st->error().message : "timeout");
   }
   open_camera();
@@ -396,8 +402,9 @@ void Runtime::Impl::shutdown(std::function<void()> done) {
         self->log->info("shutdown: robot {}, spindle at {:.0f} rpm",
                         self->robot ? drivers::to_string(self->robot->state()) : "not configured",
                         self->spindle ? self->spindle->status().velocity_rpm : 0.0);
-        if (self->plc_link) self->plc_link->stop();
+        if (self->plc_link) self->plc_link->deactivate();
         if (self->robot) self->robot->deactivate();
+        if (self->spindle) self->spindle->deactivate();
         self->workers.stop();
         self->camera_thread.stop();
         self->record_writer.stop();

@@ -217,7 +217,7 @@ asio::awaitable<std::optional<ProcessOutput>> Runtime::Impl::process_views(Cycle
         asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, po, done] {
           Result<ProcessOutput> out = Error{"pipeline.internal", "not run"};
           try {
-            out = process::process(*recipe, cell, *views_copy, po);
+            out = processing->process(*recipe, cell, *views_copy, po);
           } catch (const std::exception& e) {
             out = Error{"pipeline.internal", e.what()};
           }
@@ -254,7 +254,7 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
         asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, done] {
           Result<VerificationResult> out = Error{"pipeline.internal", "not run"};
           try {
-            out = process::verify(*recipe, cell, *views_copy, *ground);
+            out = processing->verify(*recipe, cell, *views_copy, *ground);
           } catch (const std::exception& e) {
             out = Error{"pipeline.internal", e.what()};
           }
@@ -329,7 +329,7 @@ asio::awaitable<bool> Runtime::Impl::grind(Cycle& c, const Trajectory& trajector
   c.begin("spindle down" + suffix);
   publish_state();
   auto down = co_await await_op<Status>(
-      &c, [this](std::function<void(Status)> d) { spindle->stop(d); },
+      &c, [this](std::function<void(Status)> d) { spindle->spin_down(d); },
       milliseconds(cell.spindle.spin_up_timeout_ms) + margin());
   if (c.fault) co_return false;
   if (!down) co_return fail(c, Fault{FaultCode::spindle_timeout, "spindle stop timed out", c.step});

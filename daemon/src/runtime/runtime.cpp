@@ -7,7 +7,7 @@ Runtime::Runtime(asio::io_context& io, config::CellConfig cell, RuntimeOptions o
     : impl_(std::make_shared<Impl>(io, std::move(cell), std::move(options))) {}
 
 Runtime::~Runtime() {
-  if (impl_->plc_link) impl_->plc_link->stop();
+  if (impl_->plc_link) impl_->plc_link->deactivate();
   impl_->workers.join();
   impl_->camera_thread.join();
   if (impl_->camera) impl_->camera->deactivate();  // its threads are gone: nothing captures any more

@@ -30,6 +30,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/daemon/packml_machine.hpp"
+#include "fettle/daemon/processing.hpp"
 #include "fettle/daemon/records.hpp"
 #include "fettle/daemon/runtime.hpp"
 #include "fettle/drivers/camera.hpp"
@@ -128,6 +129,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
         camera_thread(1),
         record_writer(1),
         records(cell.cell.state_dir, cell.records),
+        processing(options.processing ? options.processing : std::make_shared<const Processing>(Processing::pipeline())),
         log(log::get("fettled")) {}
 
   asio::io_context& io;
@@ -137,15 +139,17 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   asio::thread_pool camera_thread;
   asio::thread_pool record_writer;  ///< a cycle's output files (one thread: its memory peak is reached once)
   Records records;
+  std::shared_ptr<const Processing> processing;
   std::shared_ptr<spdlog::logger> log;
 
   std::map<int, std::shared_ptr<const LoadedRecipe>> recipes;
   std::optional<config::CalibrationFile> calibration;
 
-  std::unique_ptr<plc::Link> plc_link;
+  // The devices, only through their interfaces (device.hpp), made by RuntimeOptions' makers
+  // or as the cell file says.
+  std::unique_ptr<drivers::PlcDevice> plc_link;
   std::unique_ptr<drivers::RobotDevice> robot;
-  std::shared_ptr<canopen::CanTransport> can;
-  std::unique_ptr<drivers::SpindleDrive> spindle;
+  std::unique_ptr<drivers::SpindleDevice> spindle;
   std::unique_ptr<drivers::CameraDevice> camera;  ///< configured at setup; then the camera thread's only
   std::shared_ptr<std::atomic<bool>> camera_open = std::make_shared<std::atomic<bool>>(false);
 

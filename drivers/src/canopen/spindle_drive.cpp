@@ -74,8 +74,10 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
   bool transport_started = false;
   bool closed = false;
   bool boot_seen = false;
-  std::optional<std::uint16_t> found_error_code;  ///< 0x603F read at start() when the drive was in fault
+  std::optional<std::uint16_t> found_error_code;  ///< 0x603F read at activate() when the drive was in fault
   std::function<void(const SpindleEvent&)> on_event;
+  Lifecycle lifecycle = Lifecycle::unconfigured;
+  Error last_error;  ///< the last failed configure, activate or latched fault
 
   // SDO client: one transfer at a time.
   struct SdoRequest {
@@ -140,7 +142,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
   // ------------------------------------------------------------------ operations
   std::optional<std::uint64_t> begin_op(Done done, bool abort_on_fault) {
     if (op_done) {
-      done(make_error("spindle.busy", "spindle: another operation is in progress; wait for it or call stop()"));
+      done(make_error("spindle.busy", "spindle: another operation is in progress; wait for it or call spin_down()"));
       return std::nullopt;
     }
     op_done = std::move(done);
@@ -252,6 +254,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     const bool first = !st.fault;
     if (first) {
       log->error("{}", e.message);
+      last_error = e;
       st.fault = e;
       emit(SpindleEvent{SpindleEvent::Kind::fault, e.message, st.last_emcy, st.state});
     }
@@ -286,7 +289,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
       boot_seen = true;
       if (st.configured && !op_done)
         latch_fault(make_error("spindle.rebooted", "spindle: the drive (node " + std::to_string(opt.node_id) +
-                                                       ") rebooted; its configuration is lost: call start() again"));
+                                                       ") rebooted; its configuration is lost: activate it again (a Reset does)"));
       st.nmt = state;
       check_waiter();
       return;
@@ -537,7 +540,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
 
   Status check_ready(const char* what) const {
     if (!st.configured)
-      return make_error("spindle.not_started", std::string("spindle: ") + what + " before start() completed");
+      return make_error("spindle.not_started", std::string("spindle: ") + what + " before activate() completed");
     if (st.fault) return *st.fault;
     return Status{};
   }
@@ -595,11 +598,11 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     });
   }
 
-  void stop(Done done) {
+  void spin_down(Done done) {
     if (!st.configured)
-      return done(make_error("spindle.not_started", "spindle: stop before start() completed"));
+      return done(make_error("spindle.not_started", "spindle: spin_down before activate() completed"));
     if (op_done)  // stop wins over a running spin_up
-      finish_op(op_gen, make_error("spindle.cancelled", "spindle: cancelled by stop()"));
+      finish_op(op_gen, make_error("spindle.cancelled", "spindle: cancelled by spin_down()"));
     auto gen = begin_op(std::move(done), true);
     if (!gen) return;
     if (st.fault) return finish_op(*gen, *st.fault);
@@ -636,7 +639,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
 
   void fault_reset(Done done) {
     if (!st.configured && !st.fault)
-      return done(make_error("spindle.not_started", "spindle: fault_reset before start() completed"));
+      return done(make_error("spindle.not_started", "spindle: fault_reset before activate() completed"));
     if (!st.heartbeat_ok)
       return done(make_error("spindle.heartbeat_lost",
                              "spindle: cannot reset the fault: the drive's heartbeat is missing (check cable and power)"));
@@ -650,6 +653,18 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
       d(Status{});
     });
     run(*gen, std::move(steps));
+  }
+
+  /// Ends the running operation and sets the target to 0; the drive keeps its heartbeat
+  /// consumer fed, so it ramps down instead of faulting.
+  void deactivate() {
+    if (op_done) finish_op(op_gen, make_error("spindle.inactive", "spindle: deactivated"));
+    if (st.configured && (st.target_rpm != 0.0 || st.state == DriveState::operation_enabled)) {
+      const bool profile = opt.mode == OperationMode::profile_velocity;
+      sdo_download(profile ? od::target_velocity : od::vl_target_velocity, 0, 0, profile ? 4 : 2, [](Status) {});
+      st.target_rpm = 0;
+    }
+    st.configured = false;
   }
 
   void close() {
@@ -672,9 +687,56 @@ SpindleDrive::SpindleDrive(boost::asio::io_context& io, std::shared_ptr<CanTrans
 
 SpindleDrive::~SpindleDrive() { impl_->close(); }
 
-void SpindleDrive::start(Done done) { impl_->start(std::move(done)); }
+Status SpindleDrive::configure() {
+  if (impl_->lifecycle != Lifecycle::unconfigured) return {};
+  const auto& o = impl_->opt;
+  auto refuse = [&](const std::string& why) {
+    impl_->last_error = make_error("spindle.config", "[spindle] " + why);
+    return Status{impl_->last_error};
+  };
+  if (o.node_id < 1 || o.node_id > 127) return refuse("node_id " + std::to_string(o.node_id) + " is not 1-127");
+  if (o.master_node_id < 1 || o.master_node_id > 127 || o.master_node_id == o.node_id)
+    return refuse("master_node_id " + std::to_string(o.master_node_id) + " must be 1-127 and differ from node_id");
+  if (o.heartbeat_producer_ms <= 0 || o.heartbeat_timeout_ms <= o.heartbeat_producer_ms)
+    return refuse("heartbeat_timeout_ms (" + std::to_string(o.heartbeat_timeout_ms) +
+                  ") must exceed heartbeat_producer_ms (" + std::to_string(o.heartbeat_producer_ms) + "), both above 0");
+  if (o.sdo_timeout_ms <= 0 || o.step_timeout_ms <= 0 || o.spin_up_timeout_ms <= 0)
+    return refuse("sdo_timeout_ms and spin_up_timeout_ms must be above 0");
+  if (!(o.max_rpm > 0.0)) return refuse("max_rpm must be above 0");
+  impl_->lifecycle = Lifecycle::inactive;
+  impl_->last_error = {};
+  return {};
+}
+
+Status SpindleDrive::activate() {
+  if (impl_->lifecycle == Lifecycle::unconfigured)
+    return make_error("spindle.lifecycle", "spindle: activate() before configure()");
+  activate_async([impl = std::weak_ptr<Impl>(impl_)](Status st) {
+    if (auto self = impl.lock(); self && !st) self->log->warn("spindle not ready: {}", st.error().message);
+  });
+  return {};
+}
+
+void SpindleDrive::activate_async(Done done) {
+  if (impl_->lifecycle == Lifecycle::unconfigured)
+    return done(make_error("spindle.lifecycle", "spindle: activate() before configure()"));
+  impl_->lifecycle = Lifecycle::active;
+  impl_->start([impl = std::weak_ptr<Impl>(impl_), done = std::move(done)](Status st) {
+    if (auto self = impl.lock(); self && !st) self->last_error = st.error();
+    done(std::move(st));
+  });
+}
+
+void SpindleDrive::deactivate() {
+  if (impl_->lifecycle != Lifecycle::active) return;
+  impl_->deactivate();
+  impl_->lifecycle = Lifecycle::inactive;
+}
+
+Lifecycle SpindleDrive::lifecycle() const { return impl_->lifecycle; }
+const Error& SpindleDrive::last_error() const { return impl_->last_error; }
 void SpindleDrive::spin_up(double rpm, Done done) { impl_->spin_up(rpm, std::move(done)); }
-void SpindleDrive::stop(Done done) { impl_->stop(std::move(done)); }
+void SpindleDrive::spin_down(Done done) { impl_->spin_down(std::move(done)); }
 void SpindleDrive::fault_reset(Done done) { impl_->fault_reset(std::move(done)); }
 void SpindleDrive::on_event(std::function<void(const SpindleEvent&)> handler) { impl_->on_event = std::move(handler); }
 const SpindleStatus& SpindleDrive::status() const { return impl_->st; }

@@ -15,6 +15,7 @@
 #include <utility>
 #include <vector>
 
+#include <boost/asio/ip/address_v4.hpp>
 #include <boost/asio/post.hpp>
 
 #include "fettle/core/log.hpp"
@@ -356,6 +357,45 @@ Link::Link(boost::asio::any_io_executor executor, LinkOptions options, Handler o
     : impl_(std::make_unique<Impl>(std::move(executor), std::move(options), std::move(on_event))) {}
 
 Link::~Link() { stop(); }
+
+Status Link::configure() {
+  if (lifecycle_ != Lifecycle::unconfigured) return {};
+  const auto& o = impl_->options;
+  auto refuse = [&](const std::string& why) {
+    last_error_ = Error{"plc.config", "[plc] " + why};
+    return Status{last_error_};
+  };
+  boost::system::error_code ec;
+  (void)boost::asio::ip::make_address_v4(o.address, ec);
+  if (ec) return refuse("address '" + o.address + "' is not an IPv4 address");
+  if (o.port <= 0 || o.port > 65535) return refuse("port " + std::to_string(o.port) + " is not 1-65535");
+  if (o.unit_id < 0 || o.unit_id > 255) return refuse("unit_id " + std::to_string(o.unit_id) + " is not 0-255");
+  if (o.poll_period_ms <= 0 || o.response_timeout_ms <= 0 || o.reconnect_initial_ms <= 0 ||
+      o.reconnect_max_ms < o.reconnect_initial_ms)
+    return refuse("poll_period_ms, response_timeout_ms and reconnect_initial_ms must be above 0, reconnect_max_ms "
+                  "at least reconnect_initial_ms");
+  if (o.heartbeat_timeout_ms <= o.poll_period_ms)
+    return refuse("heartbeat_timeout_ms (" + std::to_string(o.heartbeat_timeout_ms) + ") must exceed poll_period_ms (" +
+                  std::to_string(o.poll_period_ms) + "): the PLC's heartbeat is read once per poll");
+  lifecycle_ = Lifecycle::inactive;
+  last_error_ = {};
+  return {};
+}
+
+Status Link::activate() {
+  if (lifecycle_ == Lifecycle::active) return {};
+  if (lifecycle_ == Lifecycle::unconfigured)
+    return last_error_ = Error{"plc.lifecycle", "PLC " + impl_->options.address + ": activate() before configure()"};
+  start();
+  lifecycle_ = Lifecycle::active;
+  return {};
+}
+
+void Link::deactivate() {
+  if (lifecycle_ != Lifecycle::active) return;
+  stop();
+  lifecycle_ = Lifecycle::inactive;
+}
 
 void Link::start() {
   if (impl_->thread.joinable()) return;

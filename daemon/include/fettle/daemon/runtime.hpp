@@ -28,11 +28,17 @@
 #include "fettle/daemon/control.hpp"
 #include "fettle/daemon/faults.hpp"
 #include "fettle/drivers/packml.hpp"
+#include "fettle/drivers/plc_link.hpp"
 
 namespace fettle::drivers {
 class CameraDevice;
 class RobotDevice;
+class SpindleDevice;
 }  // namespace fettle::drivers
+
+namespace fettle::daemon {
+struct Processing;  // processing.hpp
+}  // namespace fettle::daemon
 
 namespace fettle::daemon {
 
@@ -45,11 +51,20 @@ struct RuntimeOptions {
   bool keep_captures = true;
   /// Called on the loop thread after every PackML state change (e.g. sd_notify STATUS=).
   std::function<void(packml::State, const std::string& status_line)> on_state;
-  /// The camera the cycle captures with; empty: the GigE Vision camera of [camera]
-  /// (drivers::GigECamera). Tests give a scripted one.
+
+  // The devices and the processing the cycle runs on. Empty: the cell's real ones (the
+  // GigE Vision camera, the robot's TCP line protocol, the CANopen spindle, the Modbus PLC,
+  // fettle::process). Tests give scripted ones (tests/daemon/test_cycle_faults.cpp); each
+  // device is configured and activated by the runtime.
   std::function<std::unique_ptr<drivers::CameraDevice>(const config::CellConfig&)> make_camera;
-  /// The robot controller; empty: the TCP line protocol link of [robot] (drivers::RobotLink).
   std::function<std::unique_ptr<drivers::RobotDevice>(boost::asio::io_context&, const config::CellConfig&)> make_robot;
+  std::function<std::unique_ptr<drivers::SpindleDevice>(boost::asio::io_context&, const config::CellConfig&)>
+      make_spindle;
+  /// `on_event` must be called on the loop thread (post there).
+  std::function<std::unique_ptr<drivers::PlcDevice>(boost::asio::io_context&, const config::CellConfig&,
+                                                    drivers::PlcDevice::Handler on_event)>
+      make_plc;
+  std::shared_ptr<const Processing> processing;
 };
 
 /// A snapshot for the control socket and tests.

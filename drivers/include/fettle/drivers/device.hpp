@@ -11,7 +11,8 @@
 // deactivate(). deactivate() stops talking to the device and leaves it safe. A failed
 // transition leaves the device where it was, with last_error() saying why and what to check;
 // the device's own operations (capture, upload, ...) return their errors as values.
-// Implementations: CameraDevice (camera.hpp); the robot, spindle and PLC links follow.
+// Interfaces: CameraDevice (camera.hpp), RobotDevice (robot_link.hpp), SpindleDevice
+// (spindle.hpp), PlcDevice (plc_link.hpp); each has its real implementation there.
 #include <string_view>
 
 #include "fettle/core/result.hpp"

@@ -11,6 +11,10 @@
 // Every poll reads the PLC block and writes the Fettle block (docs/plc-interface.md).
 // Failures never throw on this path: they become LinkDown events, and the link
 // reconnects by itself with exponential back-off (reconnect_initial_ms → reconnect_max_ms).
+//
+// The cycle uses the PLC as a device with the cell's common lifecycle (device.hpp):
+//   plc::Link link(io.get_executor(), LinkOptions::from_config(cell), on_event);
+//   link.configure();  link.activate();  ...  link.deactivate();   // starts / stops the thread
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -21,6 +25,7 @@
 
 #include "fettle/config/cell.hpp"
 #include "fettle/core/result.hpp"
+#include "fettle/drivers/device.hpp"
 #include "fettle/drivers/packml.hpp"
 #include "fettle/drivers/plc_registers.hpp"
 
@@ -104,15 +109,49 @@ struct LinkStatus {
   PlcInputs inputs;  ///< last valid PLC block
 };
 
-class Link {
- public:
-  using Handler = std::function<void(const Event&)>;
+}  // namespace fettle::drivers::plc
 
+namespace fettle::drivers {
+
+/// The line PLC as a device (device.hpp): what the cycle uses. Its events (plc::Event) go to
+/// the handler its maker was given; commands are thread-safe and queued for the PLC.
+class PlcDevice : public Device {
+ public:
+  using Handler = std::function<void(const plc::Event&)>;
+
+  [[nodiscard]] std::string_view kind() const override { return "plc"; }
+  /// The PackML state shown to the PLC.
+  virtual Status set_state(packml::State state) = 0;
+  /// Commands the camera slide: 0 = home, 1..n photo position n.
+  virtual Status command_slide(int target) = 0;
+  /// Accepts the pending cycle request.
+  virtual void accept_cycle() = 0;
+  virtual Status report_result(plc::CycleResult result) = 0;
+  /// Raises fault `code` (1..65535); the first stays latched until the PLC's Reset.
+  virtual Status raise_fault(std::uint16_t code) = 0;
+  [[nodiscard]] virtual plc::LinkStatus status() const = 0;
+};
+
+}  // namespace fettle::drivers
+
+namespace fettle::drivers::plc {
+
+class Link final : public PlcDevice {
+ public:
   /// Events are posted to `executor` and delivered to `on_event` there.
   Link(boost::asio::any_io_executor executor, LinkOptions options, Handler on_event);
-  ~Link();  ///< stops the thread
-  Link(const Link&) = delete;
-  Link& operator=(const Link&) = delete;
+  ~Link() override;  ///< stops the thread
+
+  /// Checks the options (address, port, unit id, poll period and timeouts); an error names
+  /// the [plc] key ("plc.config"). Call from the thread that owns the link.
+  Status configure() override;
+  /// start() once configured.
+  Status activate() override;
+  /// stop().
+  void deactivate() override;
+  [[nodiscard]] Lifecycle lifecycle() const override { return lifecycle_; }
+  /// Why configure() or activate() refused (link outages are LinkDown events).
+  [[nodiscard]] const Error& last_error() const override { return last_error_; }
 
   void start();
   /// Stops the thread and closes the connection; no event is posted after stop() returns.
@@ -120,21 +159,23 @@ class Link {
 
   // Commands: validated here, queued, written at the next poll. An invalid argument is
   // an Error (and nothing is queued).
-  Status set_state(packml::State state);
-  Status command_slide(int target);  ///< 0 = home, 1..n photo position n
+  Status set_state(packml::State state) override;
+  Status command_slide(int target) override;  ///< 0 = home, 1..n photo position n
   /// Accepts the pending cycle request: copies the request toggle to the acknowledge toggle.
-  void accept_cycle();
-  Status report_result(CycleResult result);
+  void accept_cycle() override;
+  Status report_result(CycleResult result) override;
   /// Raises fault `code` (1..65535) and sets the latched fault bit. While latched, the
   /// first code stays; only a PackML Reset from the PLC clears it.
-  Status raise_fault(std::uint16_t code);
+  Status raise_fault(std::uint16_t code) override;
 
-  [[nodiscard]] LinkStatus status() const;
+  [[nodiscard]] LinkStatus status() const override;
   [[nodiscard]] const LinkOptions& options() const;
 
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+  Lifecycle lifecycle_ = Lifecycle::unconfigured;
+  Error last_error_;
 };
 
 }  // namespace fettle::drivers::plc

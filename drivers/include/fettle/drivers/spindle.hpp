@@ -6,6 +6,13 @@
 // timeout. A drive in fault (EMCY, fault statusword, heartbeat lost, reboot) is latched and
 // reported as an event; it is never re-enabled until fault_reset() is called explicitly.
 // See docs/spindle-canopen.md for the objects used and the start-up sequence.
+//
+// The cycle uses the spindle as a device with the cell's common lifecycle (device.hpp):
+//   SpindleDrive drive(io, transport, options);
+//   drive.configure();                 // checks the options, no bus traffic
+//   drive.activate_async(done);        // NMT reset, boot-up, SDO configuration, NMT start
+//   drive.spin_up(rpm, done);  drive.spin_down(done);
+//   drive.deactivate();                // target 0, the drive ramps down; a later activate() starts again
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -18,6 +25,7 @@
 #include "fettle/core/result.hpp"
 #include "fettle/drivers/canopen.hpp"
 #include "fettle/drivers/canopen_transport.hpp"
+#include "fettle/drivers/device.hpp"
 
 namespace fettle::drivers {
 
@@ -39,7 +47,7 @@ struct SpindleOptions {
 
 /// What the master knows about the drive (updated from TPDO1, heartbeats, EMCY, SDO reads).
 struct SpindleStatus {
-  bool configured = false;                 ///< start() finished its SDO configuration
+  bool configured = false;                 ///< activate() finished its SDO configuration
   bool heartbeat_ok = false;               ///< the drive's heartbeat arrives in time
   canopen::NmtState nmt = canopen::NmtState::boot_up;
   std::uint16_t statusword = 0;
@@ -70,31 +78,62 @@ struct SpindleEvent {
 };
 std::string to_string(SpindleEvent::Kind k);
 
-class SpindleDrive {
+/// The grinding spindle as a device (device.hpp): what the cycle uses. Asynchronous: every
+/// operation completes through its handler on the io_context's thread.
+class SpindleDevice : public Device {
  public:
   using Done = std::function<void(Status)>;
+
+  [[nodiscard]] std::string_view kind() const override { return "spindle"; }
+  /// activate() with its completion: brings the drive up (for SpindleDrive: NMT reset,
+  /// boot-up, configuration, NMT start); `done` when it is ready to spin up. activate() begins
+  /// the same and returns at once; status().configured says when it is done.
+  virtual void activate_async(Done done) = 0;
+  /// Enables the drive and reaches `rpm`; refused while a fault is latched.
+  virtual void spin_up(double rpm, Done done) = 0;
+  /// Target 0, waits for standstill, then leaves the drive switched on but without torque.
+  virtual void spin_down(Done done) = 0;
+  /// Clears a latched drive fault (the drive's fault reset), explicitly only.
+  virtual void fault_reset(Done done) = 0;
+  /// Faults, EMCY, heartbeat and link events as they happen.
+  virtual void on_event(std::function<void(const SpindleEvent&)> handler) = 0;
+  [[nodiscard]] virtual const SpindleStatus& status() const = 0;
+};
+
+class SpindleDrive final : public SpindleDevice {
+ public:
   using ValueDone = std::function<void(Result<std::uint32_t>)>;
 
   SpindleDrive(boost::asio::io_context& io, std::shared_ptr<canopen::CanTransport> transport,
                SpindleOptions options);
-  ~SpindleDrive();
-  SpindleDrive(const SpindleDrive&) = delete;
-  SpindleDrive& operator=(const SpindleDrive&) = delete;
+  ~SpindleDrive() override;
 
+  /// Checks the options (node ids, heartbeat periods, timeouts, max_rpm); an error names the
+  /// [spindle] key ("spindle.config").
+  Status configure() override;
+  /// activate_async() with a handler that logs a failure.
+  Status activate() override;
   /// NMT reset communication, wait for boot-up, configure (0x1017, 0x1016, 0x6075, TPDO1, 0x6060),
-  /// NMT start. Fails with "spindle.fault" if the drive is in fault afterwards.
-  void start(Done done);
+  /// NMT start. Fails with "spindle.fault" if the drive is in fault afterwards, with
+  /// "spindle.lifecycle" before configure().
+  void activate_async(Done done) override;
+  /// Fails the running operation ("spindle.inactive") and sets the target to 0 (the drive ramps
+  /// down on its own); the bus and both heartbeats stay, so the drive does not fault.
+  void deactivate() override;
+  [[nodiscard]] Lifecycle lifecycle() const override;
+  [[nodiscard]] const Error& last_error() const override;
+
   /// Enables the drive (shutdown → switch on → enable operation) and sets the target; completes
   /// when |actual − rpm| ≤ tolerance. Refused while a fault is latched.
-  void spin_up(double rpm, Done done);
+  void spin_up(double rpm, Done done) override;
   /// Target 0, waits for standstill, then shutdown (ready to switch on). Cancels a running spin_up.
-  void stop(Done done);
+  void spin_down(Done done) override;
   /// Fault reset (controlword bit 7), waits for "switch on disabled", clears the latched fault.
-  void fault_reset(Done done);
+  void fault_reset(Done done) override;
 
   /// Events (faults, EMCY, heartbeat, link) as they happen, on the io_context thread.
-  void on_event(std::function<void(const SpindleEvent&)> handler);
-  [[nodiscard]] const SpindleStatus& status() const;
+  void on_event(std::function<void(const SpindleEvent&)> handler) override;
+  [[nodiscard]] const SpindleStatus& status() const override;
 
   // Lower-level services, for commissioning and tests.
   void sdo_read(std::uint16_t index, std::uint8_t sub, ValueDone done);
