@@ -20,8 +20,12 @@ inline void report(const Progress& progress, std::size_t done, std::size_t total
   if (progress) progress(done, total, step);
 }
 
+/// The error of a step of the pipeline, named in the message. A planning step's error that
+/// says nothing more is of kind unplannable: no path for this part (fettled's fault 505).
 inline Error step_error(const std::string& step, const Error& inner) {
-  return Error{inner.code.empty() ? "pipeline." + step : inner.code, "step " + step + ": " + inner.message};
+  const bool planning = step == "plan" || step == "validate";
+  const ErrorKind kind = inner.kind == ErrorKind::unspecified && planning ? ErrorKind::unplannable : inner.kind;
+  return Error{inner.code.empty() ? "pipeline." + step : inner.code, "step " + step + ": " + inner.message, kind};
 }
 
 /// The part and its regions located in the views (process.cpp says how).

@@ -160,7 +160,7 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     const bool weak = !rr.ok() && rr.error->code == "vision.low_fitness" &&
                       rr.registration.fitness >= 0.5 * recipe.vision.min_fitness;
     if (!rr.ok() && !weak)
-      return Error{rr.error->code, "step vision, region '" + region.name + "': " + rr.error->message};
+      return Error{rr.error->code, "step vision, region '" + region.name + "': " + rr.error->message, rr.error->kind};
     planning::RegionInput in;
     in.region = &region;
     in.tool = &loaded.tool_for(region);

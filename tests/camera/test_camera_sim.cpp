@@ -185,6 +185,7 @@ TEST_F(CameraSim, MoreDroppedFramesThanRetriesIsACameraFault) {
   auto c = camera.capture();
   ASSERT_FALSE(c.ok());
   EXPECT_EQ(c.error().code, "camera.fault");
+  EXPECT_EQ(c.error().kind, fettle::ErrorKind::no_data);  // fettled's fault 201 comes from the kind
   EXPECT_THAT(c.error().message, HasSubstr("after 2 attempts"));
   // The camera is not broken for good: the next capture works, on a fresh connection.
   auto again = camera.capture();

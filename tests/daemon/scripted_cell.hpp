@@ -39,7 +39,7 @@ class ScriptedDevice : public Interface {
   }
   Status activate() override {
     if (lifecycle_ == drivers::Lifecycle::unconfigured)
-      return Error{std::string(this->kind()) + ".lifecycle", "activate() before configure()"};
+      return Error{std::string(this->kind()) + ".lifecycle", "activate() before configure()", ErrorKind::unavailable};
     lifecycle_ = drivers::Lifecycle::active;
     return {};
   }
@@ -112,16 +112,16 @@ class ScriptedRobot final : public ScriptedDevice<drivers::RobotDevice> {
   }
   void deactivate() override {
     ScriptedDevice::deactivate();
-    finish_run(Error{"robot.shutdown", "deactivated"});
+    finish_run(Error{"robot.shutdown", "deactivated", ErrorKind::cancelled});
     state_ = drivers::RobotState::disconnected;
   }
   void upload(const Trajectory& /*trajectory*/, Handler done) override {
     if (state_ != drivers::RobotState::ready && state_ != drivers::RobotState::uploaded)
-      return done(Error{"robot.state", "upload in state " + std::string(drivers::to_string(state_))});
+      return done(Error{"robot.state", "upload in state " + std::string(drivers::to_string(state_)), ErrorKind::unavailable});
     ++uploads;
     set(drivers::RobotState::uploading);
     boost::asio::post(io_, [this, done = std::move(done)] {
-      if (state_ != drivers::RobotState::uploading) return done(Error{"robot.stopped", "upload aborted"});
+      if (state_ != drivers::RobotState::uploading) return done(Error{"robot.stopped", "upload aborted", ErrorKind::cancelled});
       if (upload_error) {
         set(drivers::RobotState::ready);
         return done(*std::exchange(upload_error, std::nullopt));
@@ -132,7 +132,7 @@ class ScriptedRobot final : public ScriptedDevice<drivers::RobotDevice> {
   }
   void run(Handler done) override {
     if (state_ != drivers::RobotState::uploaded)
-      return done(Error{"robot.state", "run in state " + std::string(drivers::to_string(state_))});
+      return done(Error{"robot.state", "run in state " + std::string(drivers::to_string(state_)), ErrorKind::unavailable});
     ++runs;
     set(drivers::RobotState::running);
     run_done_ = std::move(done);
@@ -150,7 +150,7 @@ class ScriptedRobot final : public ScriptedDevice<drivers::RobotDevice> {
       if (state_ == drivers::RobotState::running || state_ == drivers::RobotState::uploading) {
         run_timer_.cancel();
         set(drivers::RobotState::ready);
-        finish_run(Error{"robot.stopped", "stopped by STOP"});
+        finish_run(Error{"robot.stopped", "stopped by STOP", ErrorKind::cancelled});
       } else if (state_ == drivers::RobotState::uploaded) {
         set(drivers::RobotState::ready);
       }
@@ -169,7 +169,7 @@ class ScriptedRobot final : public ScriptedDevice<drivers::RobotDevice> {
   /// The connection is lost (the controller halts on its own); it comes back 50 ms later.
   void drop() {
     run_timer_.cancel();
-    const Error e{"robot.connection_lost", "scripted: the robot controller closed the connection"};
+    const Error e{"robot.connection_lost", "scripted: the robot controller closed the connection", ErrorKind::link_lost};
     set(drivers::RobotState::disconnected, e);
     finish_run(e);
     run_timer_.expires_after(std::chrono::milliseconds(50));
@@ -180,7 +180,7 @@ class ScriptedRobot final : public ScriptedDevice<drivers::RobotDevice> {
   /// The robot reports FAULT <code> while running.
   void fault(const std::string& code) {
     run_timer_.cancel();
-    const Error e{"robot.fault." + code, "scripted: the robot reported FAULT " + code};
+    const Error e{"robot.fault." + code, "scripted: the robot reported FAULT " + code, ErrorKind::device_fault};
     set(drivers::RobotState::faulted, e);
     finish_run(e);
   }
@@ -224,7 +224,7 @@ class ScriptedSpindle final : public ScriptedDevice<drivers::SpindleDevice> {
   }
   void spin_up(double rpm, Done done) override {
     boost::asio::post(io_, [this, rpm, done = std::move(done)] {
-      if (!st_.configured) return done(Error{"spindle.not_started", "spin_up before activate()"});
+      if (!st_.configured) return done(Error{"spindle.not_started", "spin_up before activate()", ErrorKind::unavailable});
       if (st_.fault) return done(*st_.fault);
       ++spin_ups;
       st_.target_rpm = st_.velocity_rpm = rpm;
@@ -252,7 +252,7 @@ class ScriptedSpindle final : public ScriptedDevice<drivers::SpindleDevice> {
 
   /// The drive faults (its power stage off, the wheel coasts down) and says so.
   void inject_fault(const std::string& what) {
-    st_.fault = Error{"spindle.fault", "scripted: " + what};
+    st_.fault = Error{"spindle.fault", "scripted: " + what, ErrorKind::device_fault};
     st_.state = canopen::DriveState::fault;
     st_.target_rpm = st_.velocity_rpm = 0.0;
     if (on_event_) on_event_(drivers::SpindleEvent{drivers::SpindleEvent::Kind::fault, st_.fault->message, {}, st_.state});

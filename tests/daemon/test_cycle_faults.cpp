@@ -23,6 +23,7 @@
 namespace {
 
 namespace fs = std::filesystem;
+using fettle::ErrorKind;
 using fettle::daemon::FaultCode;
 using fettle::packml::Command;
 using fettle::packml::State;
@@ -239,7 +240,7 @@ TEST_F(CycleFaults, ASlideThatNeverArrivesTimesOutAndHolds) {
 TEST_F(CycleFaults, ACameraWithoutFramesHolds) {
   {
     std::lock_guard lock(camera_script_->mutex);
-    camera_script_->failures.push_back(fettle::Error{"camera.fault", "scripted: no complete frame after 2 attempts"});
+    camera_script_->failures.push_back(fettle::Error{"camera.fault", "scripted: no complete frame after 2 attempts", ErrorKind::no_data});
   }
   start_cycle();
   expect_fault(FaultCode::camera_timeout, State::held);
@@ -249,14 +250,14 @@ TEST_F(CycleFaults, ACameraWithoutFramesHolds) {
 TEST_F(CycleFaults, ACameraThatCannotBeReconnectedHolds) {
   {
     std::lock_guard lock(camera_script_->mutex);
-    camera_script_->failures.push_back(fettle::Error{"camera.control_lost", "scripted: reconnecting failed"});
+    camera_script_->failures.push_back(fettle::Error{"camera.control_lost", "scripted: reconnecting failed", ErrorKind::unavailable});
   }
   start_cycle();
   expect_fault(FaultCode::camera_unavailable, State::held);
 }
 
 TEST_F(CycleFaults, AnEmptyFixtureHolds) {
-  processing_.process_error = fettle::Error{"vision.empty_fixture", "scripted: no part above the fixture plane"};
+  processing_.process_error = fettle::Error{"vision.empty_fixture", "scripted: no part above the fixture plane", ErrorKind::no_part};
   start_cycle();
   expect_fault(FaultCode::empty_fixture, State::held);
   EXPECT_EQ(robot_->uploads, 0);
@@ -264,7 +265,7 @@ TEST_F(CycleFaults, AnEmptyFixtureHolds) {
 }
 
 TEST_F(CycleFaults, TheWrongPartHolds) {
-  processing_.process_error = fettle::Error{"vision.no_match", "scripted: the template does not fit the scan"};
+  processing_.process_error = fettle::Error{"vision.no_match", "scripted: the template does not fit the scan", ErrorKind::wrong_part};
   start_cycle();
   expect_fault(FaultCode::wrong_part, State::held);
   EXPECT_EQ(robot_->uploads, 0);
@@ -277,14 +278,14 @@ TEST_F(CycleFaults, ARecipeTheCellDoesNotListHolds) {
 }
 
 TEST_F(CycleFaults, APlanThatCannotBeMadeHolds) {
-  processing_.process_error = fettle::Error{"planning.clearance", "scripted: region riser: allowance below clearance"};
+  processing_.process_error = fettle::Error{"planning.clearance", "scripted: region riser: allowance below clearance", ErrorKind::unplannable};
   start_cycle();
   expect_fault(FaultCode::plan_failed, State::held);
   EXPECT_EQ(robot_->uploads, 0);
 }
 
 TEST_F(CycleFaults, ARobotNakOfTheUploadHolds) {
-  robot_->upload_error = fettle::Error{"robot.nak.ENVELOPE", "scripted: NAK TRAJ ENVELOPE"};
+  robot_->upload_error = fettle::Error{"robot.nak.ENVELOPE", "scripted: NAK TRAJ ENVELOPE", ErrorKind::refused};
   start_cycle();
   expect_fault(FaultCode::robot_nak, State::held);
   EXPECT_EQ(spindle_->spin_ups, 0) << "the spindle does not start for a refused trajectory";

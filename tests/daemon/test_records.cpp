@@ -348,22 +348,35 @@ TEST(Faults, TableHasUniqueCodesAndIdsAndSafetyFaultsAbort) {
     EXPECT_EQ(fettle::daemon::info(c).reaction, FaultReaction::hold);
 }
 
-TEST(Faults, ErrorsOfTheLinksMapToCodes) {
+// The fault of an error comes from where it came from and its kind, never from its code
+// string: an error whose code looks like another component's maps by its source.
+TEST(Faults, ErrorsMapToCodesByTheirSourceAndKind) {
+  using fettle::ErrorKind;
+  using fettle::daemon::ErrorSource;
   using fettle::daemon::FaultCode;
-  auto map = [](const std::string& code, bool motion, const std::string& msg = "") {
-    return fettle::daemon::fault_from_error({code, msg}, "step", motion, FaultCode::internal).code;
+  auto map = [](ErrorSource source, ErrorKind kind, bool motion, FaultCode fallback = FaultCode::internal) {
+    return fettle::daemon::fault_from_error({"any.code", "message", kind}, source, "step", motion, fallback).code;
   };
-  EXPECT_EQ(map("robot.nak.ENVELOPE", false), FaultCode::robot_nak);
-  EXPECT_EQ(map("robot.fault.COLLISION", true), FaultCode::robot_fault);
-  EXPECT_EQ(map("robot.connection_lost", true), FaultCode::robot_link_lost_moving);
-  EXPECT_EQ(map("robot.connection_lost", false), FaultCode::robot_unavailable);
-  EXPECT_EQ(map("camera.fault", false), FaultCode::camera_timeout);
-  EXPECT_EQ(map("spindle.fault", true), FaultCode::spindle_fault);
-  EXPECT_EQ(map("vision.no_part", false, "only 3 scan points inside the [vision] crop box"), FaultCode::empty_fixture);
-  EXPECT_EQ(map("vision.no_part", false, "the part was not found in the scan"), FaultCode::wrong_part);
-  EXPECT_EQ(map("vision.empty_fixture", false, "no part on the fixture"), FaultCode::empty_fixture);
-  EXPECT_EQ(map("vision.no_match", false, "whole-part fitness 0.34 below [vision] min_part_fitness"), FaultCode::wrong_part);
-  EXPECT_EQ(map("something.else", false), FaultCode::internal);
-  const auto f = fettle::daemon::fault_from_error({"camera.fault", "no frame"}, "capture 1", false, FaultCode::internal);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::refused, false), FaultCode::robot_nak);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::device_fault, true), FaultCode::robot_fault);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::timeout, true), FaultCode::robot_timeout);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::link_lost, true), FaultCode::robot_link_lost_moving);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::link_lost, false), FaultCode::robot_unavailable);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::cancelled, true), FaultCode::robot_link_lost_moving);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::invalid_request, false), FaultCode::plan_failed);
+  EXPECT_EQ(map(ErrorSource::robot, ErrorKind::unspecified, true, FaultCode::robot_fault), FaultCode::robot_fault);
+  EXPECT_EQ(map(ErrorSource::camera, ErrorKind::no_data, false), FaultCode::camera_timeout);
+  EXPECT_EQ(map(ErrorSource::camera, ErrorKind::unavailable, false), FaultCode::camera_unavailable);
+  EXPECT_EQ(map(ErrorSource::spindle, ErrorKind::device_fault, true), FaultCode::spindle_fault);
+  EXPECT_EQ(map(ErrorSource::spindle, ErrorKind::timeout, true), FaultCode::spindle_timeout);
+  EXPECT_EQ(map(ErrorSource::spindle, ErrorKind::unavailable, false), FaultCode::spindle_unavailable);
+  EXPECT_EQ(map(ErrorSource::spindle, ErrorKind::unavailable, true), FaultCode::spindle_fault);
+  EXPECT_EQ(map(ErrorSource::process, ErrorKind::no_part, false), FaultCode::empty_fixture);
+  EXPECT_EQ(map(ErrorSource::process, ErrorKind::wrong_part, false), FaultCode::wrong_part);
+  EXPECT_EQ(map(ErrorSource::process, ErrorKind::unplannable, false), FaultCode::plan_failed);
+  EXPECT_EQ(map(ErrorSource::process, ErrorKind::unspecified, false, FaultCode::vision_failed), FaultCode::vision_failed);
+  EXPECT_EQ(map(ErrorSource::plc, ErrorKind::unavailable, false, FaultCode::slide_fault), FaultCode::slide_fault);
+  const auto f = fettle::daemon::fault_from_error({"camera.fault", "no frame", ErrorKind::no_data}, ErrorSource::camera,
+                                                  "capture 1", false, FaultCode::internal);
   EXPECT_EQ(f.describe(), "E201 camera.timeout (capture 1): camera.fault: no frame");
 }

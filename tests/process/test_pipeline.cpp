@@ -140,6 +140,7 @@ TEST_F(Pipeline, EmptyFixtureIsAVisionErrorNotACrash) {
   const auto r = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
   ASSERT_FALSE(r);
   EXPECT_EQ(r.error().code, "vision.empty_fixture") << r.error().message;
+  EXPECT_EQ(r.error().kind, fettle::ErrorKind::no_part);  // fettled's fault 501 comes from the kind
   EXPECT_NE(r.error().message.find("step vision"), std::string::npos) << r.error().message;
 }
 
@@ -151,6 +152,7 @@ TEST_F(Pipeline, AFixtureWithoutItsPartIsAnEmptyFixture) {
   const auto r = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
   ASSERT_FALSE(r) << "an empty fixture was planned";
   EXPECT_EQ(r.error().code, "vision.empty_fixture") << r.error().message;
+  EXPECT_EQ(r.error().kind, fettle::ErrorKind::no_part);  // fettled's fault 501 comes from the kind
 }
 
 TEST_F(Pipeline, PlansEveryRegionOfASimulatedCastingAndValidates) {
@@ -190,6 +192,7 @@ TEST_F(Pipeline, AMirroredCastingIsTheWrongPartAndIsNotPlanned) {
     const auto r = process(*loaded_, cell_, views_of(scanner.capture_all(sim::Casting::make(mirrored, seed))));
     ASSERT_FALSE(r) << "seed " << seed << ": a mirrored casting was planned";
     EXPECT_EQ(r.error().code, "vision.no_match") << "seed " << seed << ": " << r.error().message;
+    EXPECT_EQ(r.error().kind, fettle::ErrorKind::wrong_part);
     EXPECT_NE(r.error().message.find("min_part_fitness"), std::string::npos) << r.error().message;
   }
 }

@@ -396,6 +396,7 @@ TEST_F(RobotLinkTest, PointOutsideTheEnvelopeIsNaked) {
   link_->upload(t, up.handler());
   ASSERT_TRUE(run_until([&] { return up.done(); }));
   EXPECT_EQ(up.code(), "robot.nak.envelope");
+  EXPECT_EQ(up.status->error().kind, fettle::ErrorKind::refused);  // fettled's fault 301 comes from the kind
   EXPECT_EQ(link_->state(), RobotState::ready);
   // The link stays usable: a good trajectory uploads next.
   upload(make_trajectory(7));
@@ -460,6 +461,7 @@ TEST_F(RobotLinkTest, FaultMidRunLatchesUntilReset) {
   EXPECT_EQ(run.code(), "robot.fault.collision");
   EXPECT_EQ(link_->state(), RobotState::faulted);
   EXPECT_EQ(link_->last_error().code, "robot.fault.collision");
+  EXPECT_EQ(link_->last_error().kind, fettle::ErrorKind::device_fault);
   ASSERT_EQ(executed_.size(), 1u);
   EXPECT_EQ(executed_[0].points.size(), 6u);  // the robot got as far as point 6
   // Faulted: an upload is refused until RESET.
@@ -485,6 +487,7 @@ TEST_F(RobotLinkTest, DisconnectMidUploadThenRecovers) {
   ASSERT_TRUE(run_until([&] { return up.done(); }));
   EXPECT_EQ(up.code(), "robot.connection_lost");
   EXPECT_EQ(link_->last_error().code, "robot.connection_lost");
+  EXPECT_EQ(link_->last_error().kind, fettle::ErrorKind::link_lost);
   EXPECT_NE(link_->state(), RobotState::ready);
   ASSERT_TRUE(run_until([&] { return link_->state() == RobotState::ready; }));
   EXPECT_EQ(link_->connections(), 2);

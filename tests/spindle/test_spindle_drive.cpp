@@ -262,6 +262,7 @@ TEST_F(SpindleDriveTest, OvercurrentEmcyFailsSpinUpLatchesFaultAndIsNeverReEnabl
   ASSERT_TRUE(run_until(io, [&] { return spin.done(); }));
   ASSERT_FALSE(spin.status->ok());
   EXPECT_EQ(spin.status->error().code, "spindle.fault");
+  EXPECT_EQ(spin.status->error().kind, fettle::ErrorKind::device_fault);
   EXPECT_NE(spin.status->error().message.find("0x2310 continuous over-current"), std::string::npos)
       << spin.status->error().message;
   EXPECT_TRUE(saw(SpindleEvent::Kind::emergency));

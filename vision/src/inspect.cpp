@@ -299,7 +299,7 @@ std::optional<Error> empty_fixture(const config::PartRecipe& recipe, const PartT
   if (seen_from_above == 0 || inside * 10 >= seen_from_above) return std::nullopt;
   return Error{"vision.empty_fixture",
                "no part on the fixture: " + std::to_string(inside) + " scan points above the fixture plane where the part stands (the template shows about " +
-                   std::to_string(seen_from_above) + " from above); place a part, or check the [fixture] position_mm of the recipe"};
+                   std::to_string(seen_from_above) + " from above); place a part, or check the [fixture] position_mm of the recipe", ErrorKind::no_part};
 }
 
 /// Localisation, per-region ICP and excess on a preprocessed scene (fixture frame, voxelized
@@ -311,7 +311,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   if (scene.size() < static_cast<std::size_t>(vs.min_region_points))
     return Error{"vision.no_part", "only " + std::to_string(scene.size()) +
                                        " scan points near the part's place on the fixture (after cropping, outlier and "
-                                       "fixture-plane removal): is the part on the fixture and the scan in the fixture frame?"};
+                                       "fixture-plane removal): is the part on the fixture and the scan in the fixture frame?", ErrorKind::wrong_part};
   // Coarse: FPFH + RANSAC bounded by the fixture prior. The scene's coarse cloud comes from
   // the same voxel hash; its normals are oriented towards the camera above the fixture.
   PrepareSettings ps = whole_settings(recipe);
@@ -358,12 +358,12 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
   if (!best || best->fitness < 0.5 * vs.min_fitness)
     return Error{"vision.no_part", "the part was not found in the scan (best fitness " +
                                        std::to_string(best ? best->fitness : 0.0) +
-                                       "): is it on the fixture, within the placement tolerance of the recipe?"};
+                                       "): is it on the fixture, within the placement tolerance of the recipe?", ErrorKind::wrong_part};
   if (best->fitness < vs.min_part_fitness)
     return Error{"vision.no_match", "the scan does not match the part of recipe '" + recipe.id + "': whole-part fitness " +
                                         std::to_string(best->fitness) + " below [vision] min_part_fitness " +
                                         std::to_string(vs.min_part_fitness) +
-                                        ": is it the right part (not the other hand of a pair), the right way round?"};
+                                        ": is it the right part (not the other hand of a pair), the right way round?", ErrorKind::wrong_part};
   Inspection out;
   out.whole = *best;
   timer.mark("whole-part ICP, voxel grid");
@@ -426,12 +426,12 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
     auto r = refine(rt.cloud, local, out.whole.T_scene_template, rfs);
     if (r && part_pose) r->converged = true;
     if (!r) {
-      rr.error = Error{r.error().code, "region '" + rr.name + "': " + r.error().message};
+      rr.error = Error{r.error().code, "region '" + rr.name + "': " + r.error().message, r.error().kind};
     } else {
       rr.registration = *r;
       if (r->fitness < vs.min_fitness)
         rr.error = Error{"vision.low_fitness", "region '" + rr.name + "': fitness " + std::to_string(r->fitness) +
-                                                   " below min_fitness " + std::to_string(vs.min_fitness)};
+                                                   " below min_fitness " + std::to_string(vs.min_fitness), ErrorKind::wrong_part};
       ExcessSettings es;
       es.threshold_mm = rt.region.excess_threshold_mm;
       es.min_cluster_points = vs.excess_min_cluster_points;
@@ -464,7 +464,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
                            const Transform& T_fixture_scan) {
   StageTimer timer;
   const auto& vs = recipe.vision;
-  if (scan.empty()) return Error{"vision.empty_scan", "the scan has no valid points"};
+  if (scan.empty()) return Error{"vision.empty_scan", "the scan has no valid points", ErrorKind::no_part};
   if (auto e = check_extent(bounds(scan))) return *e;
   // 1. Pass-through crop in the fixture frame (one pass, no copy of the scan): the crop box
   //    for the plane sample, the part's neighbourhood for everything else.
@@ -483,7 +483,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
   }
   if (in_crop < static_cast<std::size_t>(vs.min_region_points))
     return Error{"vision.no_part", "only " + std::to_string(in_crop) +
-                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?"};
+                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?", ErrorKind::no_part};
   // 2. Voxel grid (centroid per voxel) first, so that outlier removal searches fewer points.
   Cloud scene = voxel_downsample(inside, scene_voxel(recipe));
   inside = Cloud{};
@@ -518,7 +518,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
       return Error{"vision.empty_scan", "view " + std::to_string(i) + ": the organized scan is empty or its size (" +
                                             std::to_string(scan ? scan->size() : 0) + ") is not width x height (" +
                                             std::to_string(scan ? scan->width : 0) + " x " +
-                                            std::to_string(scan ? scan->height : 0) + ")"};
+                                            std::to_string(scan ? scan->height : 0) + ")", ErrorKind::no_part};
   }
   const Box crop = crop_of(vs);
   const Box near = part_neighbourhood(recipe, templ);
@@ -608,7 +608,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
     const double sd = all.n > 1 ? std::sqrt(std::max(0.0, all.sum2 / static_cast<double>(all.n) - mean * mean)) : 0.0;
     limit[i] = static_cast<float>(mean + vs.outlier_std_ratio * sd);
   }
-  if (valid == 0) return Error{"vision.empty_scan", "the scan has no valid points (every pixel is NaN)"};
+  if (valid == 0) return Error{"vision.empty_scan", "the scan has no valid points (every pixel is NaN)", ErrorKind::no_part};
   if (auto e = check_extent(Bounds{lo, hi})) return *e;
   timer.mark("outlier removal");
   // 2. The fixture plane from a sample of the pixels in the crop box (every 8th row and column
@@ -628,7 +628,7 @@ Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate&
   }
   if (sample.size() < static_cast<std::size_t>(vs.min_region_points) / 64 + 3)
     return Error{"vision.no_part", "only about " + std::to_string(sample.size() * 64) +
-                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?"};
+                                       " scan points inside the [vision] crop box: is the part on the fixture and the scan in the fixture frame?", ErrorKind::no_part};
   const auto plane = fixture_plane(recipe, templ, sample);
   timer.mark("plane removal");
   // 3. The kept pixels of every view into one voxel grid (a hash per thread, merged): where

@@ -335,7 +335,7 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
   pairs.reserve(n);
   for (std::size_t i = 0; i < n; ++i)
     if (corr[i] >= 0) pairs.emplace_back(T.coarse.points[i], S.coarse.points[static_cast<std::size_t>(corr[i])]);
-  if (pairs.size() < 3) return Error{"vision.no_match", "fewer than 3 feature correspondences between template and scene"};
+  if (pairs.size() < 3) return Error{"vision.no_match", "fewer than 3 feature correspondences between template and scene", ErrorKind::wrong_part};
 
   const double voxel = T.settings.coarse_voxel;
   const double inlier = settings.inlier_distance > 0 ? settings.inlier_distance : 1.5 * voxel;
@@ -422,7 +422,7 @@ Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedClou
   for (auto& p : pool) p.join();
   if (top.count < 3)
     return Error{"vision.no_match", settings.prior ? "no feature match within the fixture pose prior"
-                                                   : "no consistent feature match between template and scene"};
+                                                   : "no consistent feature match between template and scene", ErrorKind::wrong_part};
   // Refit on all inlier correspondences (twice, as the inlier set may grow).
   Eigen::Matrix4f M = top.M;
   for (int pass = 0; pass < 2; ++pass) {
@@ -769,11 +769,11 @@ Result<Registration> locate(const Cloud& templ, const Cloud& scene, const Locate
     if (!fine) continue;
     if (!best || fine->fitness > best->fitness) best = *fine;
   }
-  if (!best) return coarse ? Error{"vision.no_match", "fine registration failed for every candidate pose"} : coarse.error();
+  if (!best) return coarse ? Error{"vision.no_match", "fine registration failed for every candidate pose", ErrorKind::wrong_part} : coarse.error();
   if (best->fitness < settings.min_fitness) {
     return Error{"vision.no_match", "the template was not found in the scene: best fitness " + std::to_string(best->fitness) +
                                         " is below " + std::to_string(settings.min_fitness) +
-                                        " (is the object in the scan, and are both clouds in the same unit?)"};
+                                        " (is the object in the scan, and are both clouds in the same unit?)", ErrorKind::wrong_part};
   }
   return *best;
 }

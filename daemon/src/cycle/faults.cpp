@@ -83,44 +83,54 @@ std::string Fault::describe() const {
 }
 
 namespace {
-bool starts_with(std::string_view s, std::string_view p) { return s.substr(0, p.size()) == p; }
+
+FaultCode robot_fault_for(ErrorKind kind, bool motion, FaultCode fallback) {
+  using enum FaultCode;
+  switch (kind) {
+    case ErrorKind::refused: return robot_nak;
+    case ErrorKind::device_fault: return robot_fault;
+    case ErrorKind::timeout: return robot_timeout;
+    case ErrorKind::link_lost:
+    case ErrorKind::cancelled: return motion ? robot_link_lost_moving : robot_unavailable;
+    case ErrorKind::unavailable: return robot_unavailable;
+    case ErrorKind::invalid_request: return plan_failed;
+    default: return fallback;
+  }
+}
+
+FaultCode spindle_fault_for(ErrorKind kind, bool motion) {
+  using enum FaultCode;
+  switch (kind) {
+    case ErrorKind::timeout: return spindle_timeout;
+    case ErrorKind::unavailable:
+    case ErrorKind::refused: return motion ? spindle_fault : spindle_unavailable;  // it may turn: a fault
+    default: return spindle_fault;
+  }
+}
+
+FaultCode process_fault_for(ErrorKind kind, FaultCode fallback) {
+  using enum FaultCode;
+  switch (kind) {
+    case ErrorKind::no_part: return empty_fixture;
+    case ErrorKind::wrong_part: return wrong_part;
+    case ErrorKind::unplannable:
+    case ErrorKind::invalid_request: return plan_failed;
+    default: return fallback;
+  }
+}
+
 }  // namespace
 
-Fault fault_from_error(const Error& error, std::string_view step, bool motion, FaultCode fallback) {
-  using enum FaultCode;
-  const std::string_view c = error.code;
+Fault fault_from_error(const Error& error, ErrorSource source, std::string_view step, bool motion, FaultCode fallback) {
   FaultCode code = fallback;
-  if (starts_with(c, "robot.nak.")) {
-    code = robot_nak;
-  } else if (starts_with(c, "robot.fault.")) {
-    code = robot_fault;
-  } else if (c == "robot.run_timeout") {
-    code = robot_timeout;
-  } else if (c == "robot.connection_lost" || c == "robot.ping_timeout" || c == "robot.reply_timeout" ||
-             c == "robot.protocol" || c == "robot.shutdown" || c == "robot.connect_failed" || c == "robot.stopped") {
-    code = motion ? robot_link_lost_moving : robot_unavailable;
-  } else if (c == "robot.state") {
-    code = robot_unavailable;
-  } else if (c == "robot.invalid_point") {
-    code = plan_failed;
-  } else if (c == "spindle.timeout") {
-    code = spindle_timeout;
-  } else if (starts_with(c, "spindle.")) {
-    code = (c == "spindle.not_started" || starts_with(c, "spindle.sdo")) && !motion ? spindle_unavailable
-                                                                                    : spindle_fault;
-  } else if (c == "camera.fault") {
-    code = camera_timeout;
-  } else if (starts_with(c, "camera.")) {
-    code = camera_unavailable;
-  } else if (c == "vision.empty_scan" || c == "vision.empty_fixture" ||
-             (c == "vision.no_part" && error.message.find("crop box") != std::string::npos)) {
-    code = empty_fixture;
-  } else if (c == "vision.no_part" || c == "vision.no_match" || c == "vision.low_fitness") {
-    code = wrong_part;
-  } else if (starts_with(c, "vision.")) {
-    code = vision_failed;
-  } else if (starts_with(c, "planning.")) {
-    code = plan_failed;
+  switch (source) {
+    case ErrorSource::robot: code = robot_fault_for(error.kind, motion, fallback); break;
+    case ErrorSource::spindle: code = spindle_fault_for(error.kind, motion); break;
+    case ErrorSource::camera:
+      code = error.kind == ErrorKind::no_data ? FaultCode::camera_timeout : FaultCode::camera_unavailable;
+      break;
+    case ErrorSource::process: code = process_fault_for(error.kind, fallback); break;
+    case ErrorSource::plc: break;
   }
   return Fault{code, error.message.empty() ? error.code : error.code + ": " + error.message, std::string(step)};
 }

@@ -78,8 +78,8 @@ bool Runtime::Impl::fail(Cycle& c, Fault f) {
   return false;
 }
 
-bool Runtime::Impl::fail(Cycle& c, const Error& e, FaultCode fallback) {
-  return fail(c, fault_from_error(e, c.step, c.motion, fallback));
+bool Runtime::Impl::fail(Cycle& c, const Error& e, ErrorSource source, FaultCode fallback) {
+  return fail(c, fault_from_error(e, source, c.step, c.motion, fallback));
 }
 
 asio::awaitable<bool> Runtime::Impl::slide_to(Cycle& c, int target) {
@@ -95,7 +95,7 @@ asio::awaitable<bool> Runtime::Impl::slide_to(Cycle& c, int target) {
   auto p = std::make_shared<Pending<Status>>(io);
   slide_wait = p;
   slide_target = target;
-  if (auto st = plc_link->command_slide(target); !st) co_return fail(c, st.error(), FaultCode::slide_fault);
+  if (auto st = plc_link->command_slide(target); !st) co_return fail(c, st.error(), ErrorSource::plc, FaultCode::slide_fault);
   c.cancel = [p] { p->cancel(); };
   if (!c.fault) {
     p->timer.expires_after(milliseconds(cell.slide.travel_timeout_ms));
@@ -150,7 +150,7 @@ asio::awaitable<bool> Runtime::Impl::capture(Cycle& c, int position, std::vector
   if (!r)
     co_return fail(
         c, Fault{FaultCode::camera_timeout, "no capture within " + std::to_string(timeout.count()) + " ms", c.step});
-  if (!*r) co_return fail(c, r->error(), FaultCode::camera_unavailable);
+  if (!*r) co_return fail(c, r->error(), ErrorSource::camera, FaultCode::camera_unavailable);
   const double slide_mm = cell.slide.photo_positions_mm.at(static_cast<std::size_t>(position - 1));
   View v;
   v.cloud = std::move((*r)->cloud);
@@ -183,15 +183,15 @@ asio::awaitable<bool> Runtime::Impl::scan(Cycle& c, std::vector<View>& views, co
 }
 
 /// A failed process(): a cell fault, or with `part_error` an error about the part itself
-/// (vision.* or planning.*) returned there (see process_views).
+/// (anything but an internal one: the part cannot be located or planned) returned there (see
+/// process_views).
 void Runtime::Impl::report_process_error(Cycle& c, const Error& e, std::string* part_error) {
-  const bool planning = e.code.rfind("planning", 0) == 0;
-  if (part_error != nullptr && (planning || e.code.rfind("vision", 0) == 0)) {
+  if (part_error != nullptr && e.kind != ErrorKind::internal) {
     *part_error = e.message + " [" + e.code + "]";
     c.end();
     return;
   }
-  fail(c, e, planning ? FaultCode::plan_failed : FaultCode::vision_failed);
+  fail(c, e, ErrorSource::process, FaultCode::vision_failed);
 }
 
 // GCC 12 destroys a temporary with a non-trivial destructor in a co_await expression twice:
@@ -215,11 +215,11 @@ asio::awaitable<std::optional<ProcessOutput>> Runtime::Impl::process_views(Cycle
   const std::function<void(std::function<void(Result<ProcessOutput>)>)> start =
       [this, recipe, views_copy, po](std::function<void(Result<ProcessOutput>)> done) {
         asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, po, done] {
-          Result<ProcessOutput> out = Error{"pipeline.internal", "not run"};
+          Result<ProcessOutput> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
             out = processing->process(*recipe, cell, *views_copy, po);
           } catch (const std::exception& e) {
-            out = Error{"pipeline.internal", e.what()};
+            out = Error{"pipeline.internal", e.what(), ErrorKind::internal};
           }
           asio::post(io, [done, out = std::move(out)]() mutable { done(std::move(out)); });
         });
@@ -252,11 +252,11 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
       [this, recipe, views_copy, ground](std::function<void(Result<VerificationResult>)> done) {
         asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, done] {
-          Result<VerificationResult> out = Error{"pipeline.internal", "not run"};
+          Result<VerificationResult> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
             out = processing->verify(*recipe, cell, *views_copy, *ground);
           } catch (const std::exception& e) {
-            out = Error{"pipeline.internal", e.what()};
+            out = Error{"pipeline.internal", e.what(), ErrorKind::internal};
           }
           asio::post(io, [done, out = std::move(out)]() mutable { done(std::move(out)); });
         });
@@ -268,7 +268,7 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
     co_return std::nullopt;
   }
   if (!*r) {
-    fail(c, r->error(), FaultCode::vision_failed);
+    fail(c, r->error(), ErrorSource::process, FaultCode::vision_failed);
     co_return std::nullopt;
   }
   c.end();
@@ -285,7 +285,7 @@ asio::awaitable<bool> Runtime::Impl::grind(Cycle& c, const Trajectory& trajector
   // The planner validated it (gouges included); this is the last check before the robot,
   // against the cell's [safety] limits, whatever produced the trajectory.
   if (const auto limits = planning::validate_limits(trajectory, planning::PlannerSettings::from(cell.safety)); !limits)
-    co_return fail(c, limits.error(), FaultCode::plan_failed);
+    co_return fail(c, limits.error(), ErrorSource::process, FaultCode::plan_failed);
   c.end();
   double rpm = 0.0;  // the spindle runs at the highest speed the trajectory asks for
   for (const auto& p : trajectory.points) rpm = std::max(rpm, p.spindle_rpm);
@@ -304,7 +304,7 @@ asio::awaitable<bool> Runtime::Impl::grind(Cycle& c, const Trajectory& trajector
       milliseconds(cell.robot.reply_timeout_ms) * chunks + margin());
   if (c.fault) co_return false;
   if (!up) co_return fail(c, Fault{FaultCode::step_timeout, "trajectory upload timed out", c.step});
-  if (!*up) co_return fail(c, up->error(), FaultCode::robot_unavailable);
+  if (!*up) co_return fail(c, up->error(), ErrorSource::robot, FaultCode::robot_unavailable);
   c.end();
 
   c.begin("spindle up" + suffix);
@@ -314,7 +314,7 @@ asio::awaitable<bool> Runtime::Impl::grind(Cycle& c, const Trajectory& trajector
       milliseconds(cell.spindle.spin_up_timeout_ms) + margin());
   if (c.fault) co_return false;
   if (!sp) co_return fail(c, Fault{FaultCode::spindle_timeout, "spin-up timed out", c.step});
-  if (!*sp) co_return fail(c, sp->error(), FaultCode::spindle_fault);
+  if (!*sp) co_return fail(c, sp->error(), ErrorSource::spindle, FaultCode::spindle_fault);
   c.end();
 
   c.begin("run" + suffix);
@@ -323,7 +323,7 @@ asio::awaitable<bool> Runtime::Impl::grind(Cycle& c, const Trajectory& trajector
       &c, [this](std::function<void(Status)> d) { robot->run(d); }, milliseconds(cell.robot.run_timeout_ms) + margin());
   if (c.fault) co_return false;
   if (!run) co_return fail(c, Fault{FaultCode::robot_timeout, "no DONE within the run timeout", c.step});
-  if (!*run) co_return fail(c, run->error(), FaultCode::robot_fault);
+  if (!*run) co_return fail(c, run->error(), ErrorSource::robot, FaultCode::robot_fault);
   c.end();
 
   c.begin("spindle down" + suffix);
@@ -333,7 +333,7 @@ asio::awaitable<bool> Runtime::Impl::grind(Cycle& c, const Trajectory& trajector
       milliseconds(cell.spindle.spin_up_timeout_ms) + margin());
   if (c.fault) co_return false;
   if (!down) co_return fail(c, Fault{FaultCode::spindle_timeout, "spindle stop timed out", c.step});
-  if (!*down) co_return fail(c, down->error(), FaultCode::spindle_fault);
+  if (!*down) co_return fail(c, down->error(), ErrorSource::spindle, FaultCode::spindle_fault);
   c.motion = false;
   c.end();
   co_return true;

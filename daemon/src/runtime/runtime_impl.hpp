@@ -212,7 +212,8 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   void start_cycle(int recipe_id, bool dry, bool from_plc);
   asio::awaitable<void> run_cycle(Cycle& c);
   bool fail(Cycle& c, Fault f);
-  bool fail(Cycle& c, const Error& e, FaultCode fallback);
+  /// The fault for `e` of `source` (faults.hpp), `fallback` when its kind says nothing more.
+  bool fail(Cycle& c, const Error& e, ErrorSource source, FaultCode fallback);
   milliseconds margin() const { return options.step_margin; }
   asio::awaitable<bool> slide_to(Cycle& c, int target);
   Transform T_base_camera_at(double slide_mm) const;

@@ -374,7 +374,7 @@ struct Camera::Impl {
     } catch (const Exception& ex) {
       control_lost = true;
       return Error{"camera.control_lost", std::string(lost ? "control of the camera was lost" : "the camera sent no frame") +
-                                              " and reconnecting failed: " + ex.what()};
+                                              " and reconnecting failed: " + ex.what(), ErrorKind::unavailable};
     }
     reopen = false;
     ++reconnects;
@@ -464,7 +464,7 @@ struct Camera::Impl {
       finish_stats(st);
       if (!decoded) {
         logger()->error("camera {}: {}", address, decoded.error().message);
-        return Error{decoded.error().code, "camera " + address + ": " + decoded.error().message};
+        return Error{decoded.error().code, "camera " + address + ": " + decoded.error().message, decoded.error().kind};
       }
       out.stats = st;
       logger()->info(
@@ -481,7 +481,7 @@ struct Camera::Impl {
     return Error{"camera.fault", "camera " + address + ": no complete frame after " + std::to_string(st.attempts) +
                                      " attempts (last: " + last +
                                      "); check the cable and the network interface (packet loss), or raise "
-                                     "[camera] frame_timeout_ms / retries"};
+                                     "[camera] frame_timeout_ms / retries", ErrorKind::no_data};
   }
 };
 

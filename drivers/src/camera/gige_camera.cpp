@@ -19,12 +19,12 @@ Status GigECamera::configure() {
   if (lifecycle_ != Lifecycle::unconfigured) return {};
   const std::string which = "[camera] ";
   if (options_.address.empty() && options_.serial.empty())
-    return failed(Error{"camera.config", which + "gives neither address nor serial: set address (IPv4)"});
+    return failed(Error{"camera.config", which + "gives neither address nor serial: set address (IPv4)", ErrorKind::config});
   if (options_.frame_timeout_ms <= 0)
     return failed(Error{"camera.config",
-                        which + "frame_timeout_ms " + std::to_string(options_.frame_timeout_ms) + " must be above 0"});
+                        which + "frame_timeout_ms " + std::to_string(options_.frame_timeout_ms) + " must be above 0", ErrorKind::config});
   if (options_.retries < 0)
-    return failed(Error{"camera.config", which + "retries " + std::to_string(options_.retries) + " must be 0 or more"});
+    return failed(Error{"camera.config", which + "retries " + std::to_string(options_.retries) + " must be 0 or more", ErrorKind::config});
   lifecycle_ = Lifecycle::inactive;
   last_error_ = {};
   return {};
@@ -33,11 +33,11 @@ Status GigECamera::configure() {
 Status GigECamera::activate() {
   if (lifecycle_ == Lifecycle::active) return {};
   if (lifecycle_ == Lifecycle::unconfigured)
-    return failed(Error{"camera.lifecycle", "camera " + options_.address + ": activate() before configure()"});
+    return failed(Error{"camera.lifecycle", "camera " + options_.address + ": activate() before configure()", ErrorKind::unavailable});
   try {
     camera_ = std::make_unique<Camera>(options_);
   } catch (const Exception& e) {
-    return failed(Error{"camera.unavailable", e.what()});
+    return failed(Error{"camera.unavailable", e.what(), ErrorKind::unavailable});
   }
   info_ = camera_->info();
   lifecycle_ = Lifecycle::active;
@@ -53,7 +53,7 @@ void GigECamera::deactivate() {
 Result<CameraCapture> GigECamera::capture() {
   if (lifecycle_ != Lifecycle::active || !camera_)
     return Error{"camera.inactive", "camera " + options_.address + " is " + std::string(to_string(lifecycle_)) +
-                                        (last_error_.message.empty() ? "" : " (" + last_error_.message + ")")};
+                                        (last_error_.message.empty() ? "" : " (" + last_error_.message + ")"), ErrorKind::unavailable};
   auto c = camera_->capture();
   if (!c) last_error_ = c.error();
   return c;

@@ -24,7 +24,9 @@ std::string hex(std::uint32_t v, int digits) {
 
 std::string object_name(std::uint16_t index, std::uint8_t sub) { return hex(index, 4) + ":" + hex(sub, 2).substr(2); }
 
-Error make_error(std::string code, std::string message) { return Error{std::move(code), std::move(message)}; }
+Error make_error(std::string code, std::string message, ErrorKind kind) {
+  return Error{std::move(code), std::move(message), kind};
+}
 
 }  // namespace
 
@@ -142,7 +144,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
   // ------------------------------------------------------------------ operations
   std::optional<std::uint64_t> begin_op(Done done, bool abort_on_fault) {
     if (op_done) {
-      done(make_error("spindle.busy", "spindle: another operation is in progress; wait for it or call spin_down()"));
+      done(make_error("spindle.busy", "spindle: another operation is in progress; wait for it or call spin_down()", ErrorKind::unspecified));
       return std::nullopt;
     }
     op_done = std::move(done);
@@ -193,7 +195,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
                     canopen::to_string(self->st.state).c_str(), self->st.statusword, self->st.velocity_rpm,
                     self->st.target_rpm);
       d(make_error("spindle.timeout", "spindle: timed out after " + std::to_string(timeout_ms) + " ms waiting for " +
-                                          what + buf));
+                                          what + buf, ErrorKind::timeout));
     });
   }
 
@@ -266,9 +268,9 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     log->warn("{}", e.message);
     emit(SpindleEvent{SpindleEvent::Kind::link_error, e.message, std::nullopt, st.state});
     if (e.code == "can.socketcand" || e.code == "can.socket") {
-      if (st.configured) latch_fault(make_error("spindle.link_lost", "spindle: CAN link lost: " + e.message));
+      if (st.configured) latch_fault(make_error("spindle.link_lost", "spindle: CAN link lost: " + e.message, ErrorKind::device_fault));
       // Without a link nothing pending can complete: fail it now rather than at its timeout.
-      if (op_done) finish_op(op_gen, make_error("spindle.link_lost", "spindle: CAN link lost: " + e.message));
+      if (op_done) finish_op(op_gen, make_error("spindle.link_lost", "spindle: CAN link lost: " + e.message, ErrorKind::device_fault));
     }
   }
 
@@ -289,7 +291,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
       boot_seen = true;
       if (st.configured && !op_done)
         latch_fault(make_error("spindle.rebooted", "spindle: the drive (node " + std::to_string(opt.node_id) +
-                                                       ") rebooted; its configuration is lost: activate it again (a Reset does)"));
+                                                       ") rebooted; its configuration is lost: activate it again (a Reset does)", ErrorKind::device_fault));
       st.nmt = state;
       check_waiter();
       return;
@@ -312,7 +314,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     const std::string msg = "spindle: no heartbeat from the drive (node " + std::to_string(opt.node_id) + ") for " +
                             std::to_string(opt.heartbeat_timeout_ms) + " ms: check the CAN cable, termination and drive power";
     emit(SpindleEvent{SpindleEvent::Kind::heartbeat_lost, msg, std::nullopt, st.state});
-    latch_fault(make_error("spindle.heartbeat_lost", msg));
+    latch_fault(make_error("spindle.heartbeat_lost", msg, ErrorKind::device_fault));
   }
 
   void on_emcy(const CanFrame& f) {
@@ -321,7 +323,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     st.last_emcy = *e;
     const std::string text = "spindle: drive EMCY " + describe(*e);
     emit(SpindleEvent{SpindleEvent::Kind::emergency, text, e, st.state});
-    if (e->error_code != 0) latch_fault(make_error("spindle.fault", text));
+    if (e->error_code != 0) latch_fault(make_error("spindle.fault", text, ErrorKind::device_fault));
   }
 
   void on_tpdo1(const CanFrame& f) {
@@ -349,7 +351,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     if ((s == DriveState::fault || s == DriveState::fault_reaction_active) && st.configured) {
       std::string msg = "spindle: the drive is in fault";
       if (st.last_emcy && st.last_emcy->error_code != 0) msg += " (last EMCY " + describe(*st.last_emcy) + ")";
-      latch_fault(make_error("spindle.fault", msg + "; fix the cause, then fault_reset()"));
+      latch_fault(make_error("spindle.fault", msg + "; fix the cause, then fault_reset()", ErrorKind::device_fault));
     }
     check_waiter();
   }
@@ -384,7 +386,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
                                         object_name(r.index, r.sub) + " on node " + std::to_string(self->opt.node_id) +
                                         ": no answer within " + std::to_string(self->opt.sdo_timeout_ms) +
                                         " ms (is the drive powered, on the bus, with node id " +
-                                        std::to_string(self->opt.node_id) + "?)"));
+                                        std::to_string(self->opt.node_id) + "?)", ErrorKind::unavailable));
     });
   }
 
@@ -410,12 +412,12 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
         send(sdo_abort(opt.node_id, true, req.index, req.sub, abort_code::general));
       return sdo_complete(make_error("spindle.sdo_mismatch", "spindle: SDO " + what + ": the answer is for " +
                                                                  object_name(m->index, m->subindex) +
-                                                                 " (another SDO client on the bus with this node?)"));
+                                                                 " (another SDO client on the bus with this node?)", ErrorKind::unavailable));
     }
     switch (m->kind) {
       case SdoMessage::Kind::abort:
         return sdo_complete(make_error("spindle.sdo_abort", "spindle: SDO " + what + " aborted by the drive: " +
-                                                                hex(m->value, 8) + " " + abort_code_text(m->value)));
+                                                                hex(m->value, 8) + " " + abort_code_text(m->value), ErrorKind::refused));
       case SdoMessage::Kind::download_response:
         if (req.upload) break;
         return sdo_complete(std::uint32_t{0});
@@ -426,11 +428,11 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
         send(sdo_abort(opt.node_id, true, req.index, req.sub, abort_code::bad_command));
         return sdo_complete(make_error("spindle.sdo_unsupported", "spindle: SDO " + what +
                                                                       ": the drive answered with a segmented transfer "
-                                                                      "(only expedited transfers of up to 4 bytes are supported)"));
+                                                                      "(only expedited transfers of up to 4 bytes are supported)", ErrorKind::unavailable));
       default: break;
     }
     send(sdo_abort(opt.node_id, true, req.index, req.sub, abort_code::bad_command));
-    sdo_complete(make_error("spindle.sdo_protocol", "spindle: SDO " + what + ": unexpected answer " + to_string(f)));
+    sdo_complete(make_error("spindle.sdo_protocol", "spindle: SDO " + what + ": unexpected answer " + to_string(f), ErrorKind::unavailable));
   }
 
   // ------------------------------------------------------------------ the sequences
@@ -491,7 +493,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
           return d(make_error("spindle.mode", "spindle: the drive did not accept mode of operation " +
                                                   std::to_string(mode) + " (0x6061 reads " +
                                                   std::to_string(static_cast<std::int8_t>(*r & 0xFFU)) +
-                                                  "): check that it supports it or set [spindle] mode"));
+                                                  "): check that it supports it or set [spindle] mode", ErrorKind::unavailable));
         d(Status{});
       });
     });
@@ -528,7 +530,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
           me->latch_fault(make_error("spindle.fault", "spindle: the drive was in fault when started: error code (0x603F) " +
                                                           hex(*me->found_error_code, 4) + " " +
                                                           emcy_code_text(*me->found_error_code) +
-                                                          "; fix the cause, then fault_reset()"));
+                                                          "; fix the cause, then fault_reset()", ErrorKind::device_fault));
         else
           me->set_statusword(me->st.statusword);  // latches the fault now that we are configured
         return d(*me->st.fault);
@@ -540,7 +542,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
 
   Status check_ready(const char* what) const {
     if (!st.configured)
-      return make_error("spindle.not_started", std::string("spindle: ") + what + " before activate() completed");
+      return make_error("spindle.not_started", std::string("spindle: ") + what + " before activate() completed", ErrorKind::unavailable);
     if (st.fault) return *st.fault;
     return Status{};
   }
@@ -549,7 +551,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
     if (auto s = check_ready("spin_up"); !s) return done(s);
     if (!std::isfinite(rpm) || std::abs(rpm) > opt.max_rpm)
       return done(make_error("spindle.bad_speed", "spindle: " + std::to_string(rpm) + " rpm is outside ±" +
-                                                      std::to_string(opt.max_rpm) + " rpm ([spindle] max_rpm)"));
+                                                      std::to_string(opt.max_rpm) + " rpm ([spindle] max_rpm)", ErrorKind::invalid_request));
     auto gen = begin_op(std::move(done), true);
     if (!gen) return;
     const auto me = shared_from_this();
@@ -600,9 +602,9 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
 
   void spin_down(Done done) {
     if (!st.configured)
-      return done(make_error("spindle.not_started", "spindle: spin_down before activate() completed"));
+      return done(make_error("spindle.not_started", "spindle: spin_down before activate() completed", ErrorKind::unavailable));
     if (op_done)  // stop wins over a running spin_up
-      finish_op(op_gen, make_error("spindle.cancelled", "spindle: cancelled by spin_down()"));
+      finish_op(op_gen, make_error("spindle.cancelled", "spindle: cancelled by spin_down()", ErrorKind::cancelled));
     auto gen = begin_op(std::move(done), true);
     if (!gen) return;
     if (st.fault) return finish_op(*gen, *st.fault);
@@ -639,10 +641,10 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
 
   void fault_reset(Done done) {
     if (!st.configured && !st.fault)
-      return done(make_error("spindle.not_started", "spindle: fault_reset before activate() completed"));
+      return done(make_error("spindle.not_started", "spindle: fault_reset before activate() completed", ErrorKind::unavailable));
     if (!st.heartbeat_ok)
       return done(make_error("spindle.heartbeat_lost",
-                             "spindle: cannot reset the fault: the drive's heartbeat is missing (check cable and power)"));
+                             "spindle: cannot reset the fault: the drive's heartbeat is missing (check cable and power)", ErrorKind::device_fault));
     auto gen = begin_op(std::move(done), false);
     if (!gen) return;
     const auto me = shared_from_this();
@@ -658,7 +660,7 @@ struct SpindleDrive::Impl : std::enable_shared_from_this<Impl> {
   /// Ends the running operation and sets the target to 0; the drive keeps its heartbeat
   /// consumer fed, so it ramps down instead of faulting.
   void deactivate() {
-    if (op_done) finish_op(op_gen, make_error("spindle.inactive", "spindle: deactivated"));
+    if (op_done) finish_op(op_gen, make_error("spindle.inactive", "spindle: deactivated", ErrorKind::cancelled));
     if (st.configured && (st.target_rpm != 0.0 || st.state == DriveState::operation_enabled)) {
       const bool profile = opt.mode == OperationMode::profile_velocity;
       sdo_download(profile ? od::target_velocity : od::vl_target_velocity, 0, 0, profile ? 4 : 2, [](Status) {});
@@ -691,7 +693,7 @@ Status SpindleDrive::configure() {
   if (impl_->lifecycle != Lifecycle::unconfigured) return {};
   const auto& o = impl_->opt;
   auto refuse = [&](const std::string& why) {
-    impl_->last_error = make_error("spindle.config", "[spindle] " + why);
+    impl_->last_error = make_error("spindle.config", "[spindle] " + why, ErrorKind::config);
     return Status{impl_->last_error};
   };
   if (o.node_id < 1 || o.node_id > 127) return refuse("node_id " + std::to_string(o.node_id) + " is not 1-127");
@@ -710,7 +712,7 @@ Status SpindleDrive::configure() {
 
 Status SpindleDrive::activate() {
   if (impl_->lifecycle == Lifecycle::unconfigured)
-    return make_error("spindle.lifecycle", "spindle: activate() before configure()");
+    return make_error("spindle.lifecycle", "spindle: activate() before configure()", ErrorKind::unavailable);
   activate_async([impl = std::weak_ptr<Impl>(impl_)](Status st) {
     if (auto self = impl.lock(); self && !st) self->log->warn("spindle not ready: {}", st.error().message);
   });
@@ -719,7 +721,7 @@ Status SpindleDrive::activate() {
 
 void SpindleDrive::activate_async(Done done) {
   if (impl_->lifecycle == Lifecycle::unconfigured)
-    return done(make_error("spindle.lifecycle", "spindle: activate() before configure()"));
+    return done(make_error("spindle.lifecycle", "spindle: activate() before configure()", ErrorKind::unavailable));
   impl_->lifecycle = Lifecycle::active;
   impl_->start([impl = std::weak_ptr<Impl>(impl_), done = std::move(done)](Status st) {
     if (auto self = impl.lock(); self && !st) self->last_error = st.error();

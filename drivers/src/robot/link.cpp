@@ -64,7 +64,9 @@ std::string lower(std::string_view s) {
   return out;
 }
 
-Error err(std::string code, std::string message) { return Error{std::move(code), std::move(message)}; }
+Error err(std::string code, std::string message, ErrorKind kind) {
+  return Error{std::move(code), std::move(message), kind};
+}
 
 }  // namespace
 
@@ -159,7 +161,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
     boost::system::error_code ec;
     const auto addr = asio::ip::make_address(opts_.address, ec);
     if (ec) {
-      link_down(err("robot.address", "robot address '" + opts_.address + "' is not an IP address: check [robot] address"));
+      link_down(err("robot.address", "robot address '" + opts_.address + "' is not an IP address: check [robot] address", ErrorKind::config));
       return;
     }
     socket_ = tcp::socket(io_);
@@ -183,7 +185,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
   void on_connected(const boost::system::error_code& ec) {
     if (ec) {
       link_down(err("robot.connect_failed", "cannot connect to the robot controller at " + endpoint_text() + ": " +
-                                                ec.message() + " (is the robot program running and listening?)"));
+                                                ec.message() + " (is the robot program running and listening?)", ErrorKind::unavailable));
       return;
     }
     boost::system::error_code ignored;
@@ -237,7 +239,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
   void shutdown() {
     active_ = false;
     close_socket();
-    const Error cause = err("robot.shutdown", "the robot link was shut down");
+    const Error cause = err("robot.shutdown", "the robot link was shut down", ErrorKind::cancelled);
     set_state(RobotState::disconnected, cause);
     fail_all(cause);
   }
@@ -269,7 +271,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
                       [self = shared_from_this(), gen](const boost::system::error_code& ec, std::size_t) {
                         if (gen != self->generation_) return;
                         if (ec) {
-                          self->link_down(err("robot.connection_lost", "writing to the robot failed: " + ec.message()));
+                          self->link_down(err("robot.connection_lost", "writing to the robot failed: " + ec.message(), ErrorKind::link_lost));
                           return;
                         }
                         self->write_queue_.pop_front();
@@ -290,7 +292,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
     if (ec) {
       link_down(err("robot.connection_lost", ec == asio::error::eof
                                                  ? "the robot controller closed the connection"
-                                                 : "reading from the robot failed: " + ec.message()));
+                                                 : "reading from the robot failed: " + ec.message(), ErrorKind::link_lost));
       return;
     }
     std::vector<std::string> lines;
@@ -301,7 +303,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
       if (gen != generation_) return;  // the line closed the connection
     }
     if (!st) {
-      link_down(err("robot.protocol", "robot sent garbage: " + st.error().message));
+      link_down(err("robot.protocol", "robot sent garbage: " + st.error().message, ErrorKind::link_lost));
       return;
     }
     read();
@@ -311,13 +313,13 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
     log_->trace("robot -> {}", text);
     auto parsed = proto::parse_line(text);
     if (!parsed) {
-      link_down(err("robot.protocol", "robot sent an invalid line (" + parsed.error().message + ")"));
+      link_down(err("robot.protocol", "robot sent an invalid line (" + parsed.error().message + ")", ErrorKind::link_lost));
       return;
     }
     const auto& line = *parsed;
     if (line.seq != proto::next_seq(seq_in_)) {
       link_down(err("robot.seq", "robot line has sequence number " + std::to_string(line.seq) + ", expected " +
-                                     std::to_string(proto::next_seq(seq_in_)) + " (a line was lost)"));
+                                     std::to_string(proto::next_seq(seq_in_)) + " (a line was lost)", ErrorKind::link_lost));
       return;
     }
     seq_in_ = line.seq;
@@ -330,7 +332,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
       case proto::Verb::fault: on_fault(line); return;
       default:
         link_down(err("robot.protocol", "robot sent " + std::string(proto::verb_name(line.verb)) +
-                                            ", which only fettle may send"));
+                                            ", which only fettle may send", ErrorKind::link_lost));
         return;
     }
   }
@@ -344,7 +346,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
       // The token catches an expiry already queued when the reply arrived.
       if (e || gen != self->generation_ || token != self->reply_token_) return;
       self->link_down(err("robot.reply_timeout",
-                          "no reply from the robot within " + std::to_string(ms) + " ms waiting for " + what));
+                          "no reply from the robot within " + std::to_string(ms) + " ms waiting for " + what, ErrorKind::link_lost));
     });
   }
 
@@ -366,7 +368,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
       if (self->missed_ >= self->opts_.missed_pings) {
         self->link_down(err("robot.ping_timeout", "robot did not answer " + std::to_string(self->missed_) +
                                                       " PINGs in a row (period " +
-                                                      std::to_string(self->opts_.ping_period_ms) + " ms)"));
+                                                      std::to_string(self->opts_.ping_period_ms) + " ms)", ErrorKind::link_lost));
         return;
       }
       ++self->missed_;
@@ -391,12 +393,12 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
     switch (r) {
       case Req::hello:
         if (line.fields.size() != 3) {
-          link_down(err("robot.protocol", "robot's HELLO ACK lacks its protocol version and robot id"));
+          link_down(err("robot.protocol", "robot's HELLO ACK lacks its protocol version and robot id", ErrorKind::link_lost));
           return;
         }
         if (*proto::to_int(line.fields[1]) != proto::kProtocolVersion) {
           link_down(err("robot.version", "robot speaks protocol version " + line.fields[1] + ", fettle speaks " +
-                                             std::to_string(proto::kProtocolVersion)));
+                                             std::to_string(proto::kProtocolVersion), ErrorKind::unavailable));
           return;
         }
         robot_id_ = line.fields[2];
@@ -431,7 +433,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
           const Error cause = err("robot.run_timeout", "trajectory " + std::to_string(self->traj_id_) +
                                                            " did not finish within " +
                                                            std::to_string(self->opts_.run_timeout_ms) +
-                                                           " ms; sent STOP");
+                                                           " ms; sent STOP", ErrorKind::timeout);
           self->last_error_ = cause;
           complete(self->op_done_, cause);
           self->stop(nullptr);
@@ -455,7 +457,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
   void on_nak(const proto::Line& line) {
     const std::string code = line.fields[1];
     const Error cause = err("robot.nak." + lower(code), "robot refused line " + line.fields[0] + " with " + code +
-                                                            (line.text.empty() ? "" : ": " + line.text));
+                                                            (line.text.empty() ? "" : ": " + line.text), ErrorKind::refused);
     if (!pending_) {
       log_->warn("robot: unexpected NAK: {}", cause.message);
       return;
@@ -516,7 +518,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
     const Error cause = err("robot.fault." + lower(line.fields[1]),
                             "robot controller fault " + line.fields[1] +
                                 (line.fields[0] != "0" ? " during trajectory " + line.fields[0] : std::string()) +
-                                (line.text.empty() ? "" : ": " + line.text) + " (clear it, then reset the link)");
+                                (line.text.empty() ? "" : ": " + line.text) + " (clear it, then reset the link)", ErrorKind::device_fault);
     log_->error("{}", cause.message);
     run_timer_.cancel();
     if (pending_ && pending_->req != Req::stop) {
@@ -534,7 +536,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
     const bool ok = std::find(allowed.begin(), allowed.end(), state_) != allowed.end();
     if (!ok || pending_ || op_done_)
       return Error{"robot.state", std::string("cannot ") + std::string(what) + " while the robot link is " +
-                                      std::string(to_string(state_)) + (pending_ ? " (a request is pending)" : "")};
+                                      std::string(to_string(state_)) + (pending_ ? " (a request is pending)" : ""), ErrorKind::unavailable};
     return {};
   }
 
@@ -546,11 +548,11 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
   void upload(const Trajectory& t, Handler done) {
     if (auto st = check_idle({RobotState::ready, RobotState::uploaded}, "upload a trajectory"); !st)
       return post_fail(std::move(done), st);
-    if (t.points.empty()) return post_fail(std::move(done), Error{"robot.invalid_point", "the trajectory has no points"});
+    if (t.points.empty()) return post_fail(std::move(done), Error{"robot.invalid_point", "the trajectory has no points", ErrorKind::invalid_request});
     if (t.points.size() > static_cast<std::size_t>(proto::kMaxPoints))
       return post_fail(std::move(done), Error{"robot.invalid_point", "the trajectory has " +
                                                                          std::to_string(t.points.size()) +
-                                                                         " points; at most 99999 fit one upload"});
+                                                                         " points; at most 99999 fit one upload", ErrorKind::invalid_request});
     std::vector<std::pair<std::string, std::string>> payloads;
     payloads.reserve(t.points.size());
     for (std::size_t i = 0; i < t.points.size(); ++i) {
@@ -605,10 +607,10 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
   void stop(Handler done) {
     if (!connected()) {
       return post_fail(std::move(done), Error{"robot.state", "cannot stop: the robot link is " +
-                                                                  std::string(to_string(state_))});
+                                                                  std::string(to_string(state_)), ErrorKind::unavailable});
     }
     if (pending_ && pending_->req == Req::hello) {
-      return post_fail(std::move(done), Error{"robot.state", "cannot stop while the HELLO is pending"});
+      return post_fail(std::move(done), Error{"robot.state", "cannot stop while the HELLO is pending", ErrorKind::unavailable});
     }
     if (stop_done_ || (pending_ && pending_->req == Req::stop)) {
       // A STOP is on its way: this caller gets its ACK (or its failure) too; one STOP on the wire.
@@ -618,7 +620,7 @@ struct RobotLink::Impl : std::enable_shared_from_this<Impl> {
       };
       return;
     }
-    const Error stopped = err("robot.stopped", "stopped on request before the robot finished");
+    const Error stopped = err("robot.stopped", "stopped on request before the robot finished", ErrorKind::cancelled);
     if (state_ != RobotState::stopping) state_before_stop_ = state_;
     if (pending_) {
       pending_.reset();
@@ -656,7 +658,7 @@ Status RobotLink::configure() {
   if (lifecycle_ != Lifecycle::unconfigured) return {};
   const auto& o = impl_->opts_;
   auto refuse = [&](const std::string& why) {
-    impl_->last_error_ = Error{"robot.config", "[robot] " + why};
+    impl_->last_error_ = Error{"robot.config", "[robot] " + why, ErrorKind::config};
     return Status{impl_->last_error_};
   };
   if (o.address.empty()) return refuse("address is empty: set the robot controller's IPv4 address");
@@ -670,7 +672,7 @@ Status RobotLink::configure() {
 Status RobotLink::activate() {
   if (lifecycle_ == Lifecycle::active) return {};
   if (lifecycle_ == Lifecycle::unconfigured)
-    return Error{"robot.lifecycle", "robot " + impl_->opts_.address + ": activate() before configure()"};
+    return Error{"robot.lifecycle", "robot " + impl_->opts_.address + ": activate() before configure()", ErrorKind::unavailable};
   impl_->start();
   lifecycle_ = Lifecycle::active;
   return {};

@@ -270,7 +270,7 @@ std::optional<MoveKind> kind_from_letter(char c) {
 
 Status check_point(const TrajectoryPoint& p, int index) {
   const auto bad = [index](const std::string& what) {
-    return Status(Error{"robot.invalid_point", "trajectory point " + std::to_string(index) + ": " + what});
+    return Status(Error{"robot.invalid_point", "trajectory point " + std::to_string(index) + ": " + what, ErrorKind::invalid_request});
   };
   if (index < 0 || index >= kMaxPoints)
     return bad("index outside 0.." + std::to_string(kMaxPoints - 1) + " (trajectory too long for one upload)");

@@ -79,8 +79,12 @@ struct Fault {
   [[nodiscard]] std::string describe() const;
 };
 
-/// The fault for an Error of a device link or the pipeline, given whether the robot or
-/// spindle may be moving. Unknown codes map to `fallback`.
-Fault fault_from_error(const Error& error, std::string_view step, bool motion, FaultCode fallback);
+/// What the cycle called when it got an error.
+enum class ErrorSource { plc, camera, robot, spindle, process };
+
+/// The fault for an Error of a device or the pipeline, from its source and its kind (never from
+/// its code string), given whether the robot or spindle may be moving. An error whose kind says
+/// nothing more for its source is `fallback` (the caller's step knows what failed).
+Fault fault_from_error(const Error& error, ErrorSource source, std::string_view step, bool motion, FaultCode fallback);
 
 }  // namespace fettle::daemon
