@@ -205,16 +205,22 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
   std::ostringstream m;
   char buf[512];
   const std::string seeds = std::to_string(f.first) + "-" + std::to_string(f.last);
-  m << "## Closed-loop accuracy: `make accuracy` (`fettle-sim trial`)\n\n";
-  std::snprintf(buf, sizeof buf, "%s, %zu castings, seeds %s (%s; repeat with `make accuracy ACCURACY_SEEDS=%s`), "
-                "%d x %d views, %.1f min%s. Acceptance: **%s**.\n\n",
+  char bias[96] = "";
+  if (f.biased)
+    std::snprintf(bias, sizeof bias, "%.2f %.2f %.2f", f.path_bias.x(), f.path_bias.y(), f.path_bias.z());
+  // A biased run checks the cell's verification (make accuracy-bias); an unbiased one, accuracy.
+  const std::string make = f.biased ? "make accuracy-bias BIAS_SEEDS=" : "make accuracy ACCURACY_SEEDS=";
+  if (f.biased)
+    m << "## The verification catches gouges: `make accuracy-bias` (`fettle-sim trial --path-bias-mm " << bias
+      << "`)\n\n";
+  else
+    m << "## Closed-loop accuracy: `make accuracy` (`fettle-sim trial`)\n\n";
+  std::snprintf(buf, sizeof buf, "%s, %zu castings, seeds %s (%s; repeat with `%s%s`), "
+                "%d x %d views, %.1f min%s%s%s. Acceptance: **%s**.\n\n",
                 app::utc_now().c_str(), f.count, seeds.c_str(),
                 f.drawn ? ("drawn at run time for `--seeds " + f.seeds_arg + "`").c_str() : "chosen by hand",
-                seeds.c_str(), f.width, f.height, f.minutes,
-                f.biased ? (", the executed path offset by (" + std::to_string(f.path_bias.x()) + ", " +
-                            std::to_string(f.path_bias.y()) + ", " + std::to_string(f.path_bias.z()) + ") mm")
-                               .c_str()
-                         : "",
+                make.c_str(), seeds.c_str(), f.width, f.height, f.minutes,
+                f.biased ? ", the executed path offset by (" : "", bias, f.biased ? ") mm from the commanded one" : "",
                 f.pass ? "PASS" : "FAIL");
   m << buf;
   std::vector<double> g = f.seed_gouges;

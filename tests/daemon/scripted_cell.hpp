@@ -222,6 +222,13 @@ class ScriptedSpindle final : public ScriptedDevice<drivers::SpindleDevice> {
     st_.target_rpm = st_.velocity_rpm = 0.0;
     st_.configured = false;
   }
+  bool released = false;  ///< deactivate_async() completed: the program may exit
+
+  void deactivate_async(Done done) override {
+    deactivate();
+    released = true;
+    boost::asio::post(io_, [done = std::move(done)] { done({}); });
+  }
   void spin_up(double rpm, Done done) override {
     boost::asio::post(io_, [this, rpm, done = std::move(done)] {
       if (!st_.configured) return done(Error{"spindle.not_started", "spin_up before activate()", ErrorKind::unavailable});

@@ -79,6 +79,7 @@ class CycleFaults : public ::testing::Test {
     bool closed = false;
     runtime_->shutdown([&] { closed = true; });
     EXPECT_TRUE(run_until(io_, [&] { return closed; }, 5s));
+    EXPECT_TRUE(spindle_->released) << "a clean stop releases the drive (no heartbeat fault after fettled exits)";
     runtime_.reset();
     // The bound: an in-process fault test runs in under a second.
     EXPECT_LT(std::chrono::steady_clock::now() - t0_, 1s);
@@ -119,6 +120,8 @@ class CycleFaults : public ::testing::Test {
     EXPECT_EQ(plc_->shown, end);
     EXPECT_NE(robot_->state(), fettle::drivers::RobotState::running);
     EXPECT_EQ(spindle_->status().velocity_rpm, 0.0);
+    // the accepted request's one result: FAULT, so the PLC can tell a failed cycle from a running one
+    EXPECT_EQ(plc_->results, std::vector<fettle::drivers::plc::CycleResult>{fettle::drivers::plc::CycleResult::fault});
     expect_record(fettle::daemon::info(code).reaction == fettle::daemon::FaultReaction::abort ? "ABORTED" : "FAULT",
                   number);
   }
@@ -157,9 +160,11 @@ class CycleFaults : public ::testing::Test {
     // a robot link that was lost reconnects by itself (a faulted robot is reset by Clear)
     ASSERT_TRUE(run_until(io_, [&] { return robot_->state() != fettle::drivers::RobotState::disconnected; }));
     ASSERT_TRUE(to_execute());
+    const auto before = plc_->results.size();
     plc_->request(1);
-    ASSERT_TRUE(run_until(io_, [&] { return !plc_->results.empty(); }))
+    ASSERT_TRUE(run_until(io_, [&] { return plc_->results.size() > before; }))
         << "no result after the reset; state " << fettle::packml::name(state());
+    EXPECT_EQ(plc_->results.size(), before + 1);
     EXPECT_EQ(plc_->results.back(), fettle::drivers::plc::CycleResult::ok);
     EXPECT_EQ(state(), State::execute);
   }
@@ -264,6 +269,21 @@ TEST_F(CycleFaults, AnEmptyFixtureHolds) {
   expect_recovery();
 }
 
+// A Reset in Held clears the latch and is not "ignored" (Held stays Held until Unhold).
+TEST_F(CycleFaults, AResetInHeldClearsTheLatchAndTheCellStaysHeld) {
+  processing_.process_error = fettle::Error{"vision.empty_fixture", "scripted: no part", ErrorKind::no_part};
+  start_cycle();
+  expect_fault(FaultCode::empty_fixture, State::held);
+  const auto st = runtime_->command(Command::reset, "test");
+  EXPECT_TRUE(st.ok()) << st.error().message;
+  EXPECT_FALSE(runtime_->status_snapshot().fault.has_value());
+  run_until(io_, [] { return false; }, 20ms);
+  EXPECT_EQ(state(), State::held);
+  // a second Reset has nothing to clear: it is refused in Held, with the reason
+  const auto again = runtime_->command(Command::reset, "test");
+  EXPECT_FALSE(again.ok());
+}
+
 TEST_F(CycleFaults, TheWrongPartHolds) {
   processing_.process_error = fettle::Error{"vision.no_match", "scripted: the template does not fit the scan", ErrorKind::wrong_part};
   start_cycle();
@@ -325,6 +345,7 @@ TEST_F(CycleFaults, AnAbortFromThePlcWhileGrindingStopsEverything) {
   ASSERT_TRUE(run_until(io_, [&] { return state() == State::aborted && !cycle_running(); }))
       << fettle::packml::name(state());
   EXPECT_EQ(plc_->fault_code, 0);
+  EXPECT_EQ(plc_->results, std::vector<fettle::drivers::plc::CycleResult>{fettle::drivers::plc::CycleResult::fault});
   EXPECT_GE(robot_->stops, 1) << "the robot is told STOP first";
   EXPECT_NE(robot_->state(), fettle::drivers::RobotState::running);
   EXPECT_EQ(spindle_->status().velocity_rpm, 0.0);

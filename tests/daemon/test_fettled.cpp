@@ -571,8 +571,8 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
   EXPECT_EQ(report["fault"].value("code", 0), 602) << report.dump(2);
 
   // --- SIGKILL mid-run, then a restart ---
-  // The PLC still asks for a cycle (the aborted one got no result): the restarted fettled runs
-  // one for what is on the fixture once in Execute, so the next casting goes on first.
+  // The PLC asks for the next cycle (the aborted one ended with a FAULT result): the restarted
+  // fettled runs one for what is on the fixture once in Execute, so the next casting goes on first.
   cell_->load(12);
   spawn_fettled(true);
   ASSERT_TRUE(wait_until(answers, 120s)) << tail_log();

@@ -157,7 +157,8 @@ TEST(PlcCodec, WrongBlockLengthIsAViolation) {
 TEST(PlcCodec, FettleBlockIsCheckedToo) {
   EXPECT_EQ(fettle_with(plc::reg::packml_state, 0).size(), 1U);
   EXPECT_EQ(fettle_with(plc::reg::packml_state, 18).size(), 1U);
-  EXPECT_EQ(fettle_with(plc::reg::cycle_result, 4).size(), 1U);
+  EXPECT_EQ(fettle_with(plc::reg::cycle_result, 4).size(), 0U);  // FAULT
+  EXPECT_EQ(fettle_with(plc::reg::cycle_result, 5).size(), 1U);
   EXPECT_EQ(fettle_with(plc::reg::slide_target, 3).size(), 1U);
   // A latched bit without a code (or a code without the bit) is inconsistent.
   EXPECT_EQ(fettle_with(plc::reg::fault_latched, 1).size(), 1U);

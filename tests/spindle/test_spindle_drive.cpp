@@ -118,6 +118,20 @@ TEST_F(SpindleDriveTest, TheDriveGoesThroughTheDeviceLifecycleAndDeactivateRamps
   EXPECT_TRUE(s.ok()) << s.error().message;
 }
 
+// A clean stop: the released drive no longer watches our heartbeat, so the master may go away
+// without the heartbeat fault (0x8130) a killed master leaves (next test but one).
+TEST_F(SpindleDriveTest, AReleasedDriveDoesNotFaultWhenTheMasterGoes) {
+  make_started(fast_heartbeats());
+  ASSERT_TRUE(await(io, [&](auto h) { master->spin_up(3000, h); }).ok());
+  ASSERT_TRUE(await(io, [&](auto h) { master->spin_down(h); }).ok());
+  const Status released = await(io, [&](auto h) { master->deactivate_async(h); });
+  ASSERT_TRUE(released.ok()) << released.error().message;
+  EXPECT_EQ(master->lifecycle(), fettle::drivers::Lifecycle::inactive);
+  master.reset();  // the process exits: no more heartbeats
+  run_for(io, 500ms);  // four times the drive's heartbeat timeout
+  EXPECT_EQ(drive->state(), DriveState::switch_on_disabled);
+}
+
 TEST_F(SpindleDriveTest, ConfigureRefusesOptionsThatCannotWorkNamingTheKey) {
   bus = InProcessBus::create();
   SpindleOptions o;

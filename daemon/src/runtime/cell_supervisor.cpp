@@ -154,16 +154,23 @@ asio::awaitable<void> Runtime::Impl::act(State s, std::uint64_t gen) {
 }
 
 Status Runtime::Impl::command(Command c, const std::string& source) {
-  if (c == Command::reset && fault) {
-    log->info("Reset from {} clears fault {}", source, fault->describe());
-    fault.reset();
-  }
+  // A Reset clears the latched fault in any state (docs/faults.md: in Held it clears the latch
+  // and Held stays Held): one log line says what the command did.
+  std::optional<Fault> cleared;
+  if (c == Command::reset && fault) cleared = std::exchange(fault, std::nullopt);
   auto next = machine.command(c);
   if (!next) {
+    if (cleared) {
+      log->info("Reset from {} clears fault {}; the cell stays {}", source, cleared->describe(),
+                packml::name(machine.state()));
+      publish_state();
+      return {};
+    }
     log->warn("{} from {} ignored: {}", packml::name(c), source, next.error().message);
     publish_state();
     return next.error();
   }
+  if (cleared) log->info("Reset from {} clears fault {}", source, cleared->describe());
   log->info("PackML command {} from {}", packml::name(c), source);
   if ((c == Command::abort || c == Command::stop || c == Command::hold) && cycle && !cycle->fault)
     interrupt(Fault{c == Command::abort ? FaultCode::operator_abort : FaultCode::operator_abort,
@@ -237,6 +244,14 @@ asio::awaitable<void> Runtime::Impl::stop_spindle() {
       nullptr, [this](std::function<void(Status)> done) { spindle->spin_down(done); },
       milliseconds(cell.spindle.spin_up_timeout_ms + 1000));
   if (!st || !*st) log->warn("spindle stop: {}", st ? st->error().message : "timeout");
+}
+
+/// The last thing before fettled exits: the drive stops watching our heartbeat, so a clean stop
+/// leaves it without a heartbeat fault (only SIGKILL may; docs/daemon.md).
+asio::awaitable<void> Runtime::Impl::release_spindle() {
+  auto st = co_await await_op<Status>(
+      nullptr, [this](std::function<void(Status)> d) { spindle->deactivate_async(d); }, milliseconds(1000));
+  if (!st || !*st) log->warn("spindle release: {}", st ? st->error().message : "timeout");
 }
 
 asio::awaitable<void> Runtime::Impl::wait_cycle_gone() {
@@ -360,8 +375,13 @@ void Runtime::Impl::finish_cycle(const std::shared_ptr<Cycle>& cp) {
   last_result = s.result;
   log->info("cycle {} ended: {} in {:.1f} s{}", s.id, s.result, s.duration_s,
             c.fault ? " - " + c.fault->describe() : "");
-  if (!c.fault && !c.dry && plc_link)
-    (void)plc_link->report_result(s.result == "OK" ? plc::CycleResult::ok : plc::CycleResult::nok);
+  // Every cycle the PLC requested ends in exactly one result, a faulted one in FAULT (its code
+  // is in fault_code when it latched): the PLC can tell "still running" from "failed"
+  // (docs/plc-interface.md; test CycleFaults.*).
+  if (!c.dry && plc_link)
+    (void)plc_link->report_result(c.fault           ? plc::CycleResult::fault
+                                  : s.result == "OK" ? plc::CycleResult::ok
+                                                     : plc::CycleResult::nok);
   if (cycle == cp) cycle.reset();
   publish_state();
   if (machine.state() == State::execute && options.max_cycles > 0 && cycles_in_execute >= options.max_cycles) {
@@ -402,9 +422,11 @@ void Runtime::Impl::shutdown(std::function<void()> done) {
         self->log->info("shutdown: robot {}, spindle at {:.0f} rpm",
                         self->robot ? drivers::to_string(self->robot->state()) : "not configured",
                         self->spindle ? self->spindle->status().velocity_rpm : 0.0);
+        if (self->spindle) co_await self->release_spindle();
+        // two polls: the interrupted cycle's FAULT result reaches the PLC before the link closes
+        co_await self->sleep(milliseconds(2 * std::max(1, self->cell.plc.poll_period_ms)));
         if (self->plc_link) self->plc_link->deactivate();
         if (self->robot) self->robot->deactivate();
-        if (self->spindle) self->spindle->deactivate();
         self->workers.stop();
         self->camera_thread.stop();
         self->record_writer.stop();

@@ -46,6 +46,7 @@ void Runtime::Impl::start_cycle(int recipe_id, bool dry, bool from_plc) {
   auto begun = records.begin(recipe_id, c->recipe ? c->recipe->recipe.id : "", dry);
   if (!begun) {
     raise(Fault{FaultCode::records_failed, begun.error().message, "begin"});
+    if (from_plc) (void)plc_link->report_result(plc::CycleResult::fault);  // the request's one result
     return;
   }
   c->summary = *begun;

@@ -195,6 +195,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   asio::awaitable<void> stop_robot();
   asio::awaitable<void> stop_robot_if_moving();
   asio::awaitable<void> stop_spindle();
+  asio::awaitable<void> release_spindle();
   asio::awaitable<void> wait_cycle_gone();
   asio::awaitable<void> slide_home_best_effort();
   asio::awaitable<void> clear_devices();

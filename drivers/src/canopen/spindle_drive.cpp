@@ -735,6 +735,16 @@ void SpindleDrive::deactivate() {
   impl_->lifecycle = Lifecycle::inactive;
 }
 
+void SpindleDrive::deactivate_async(Done done) {
+  if (impl_->lifecycle != Lifecycle::active) return done({});
+  deactivate();
+  const auto& me = impl_;
+  me->log->info("releasing the drive: switch on disabled, heartbeat consumer off");
+  me->chain({me->sdo_write_step(od::controlword, 0, controlword::disable_voltage, 2),
+             me->sdo_write_step(od::consumer_heartbeat_time, 1, 0, 4)},
+            0, std::move(done));
+}
+
 Lifecycle SpindleDrive::lifecycle() const { return impl_->lifecycle; }
 const Error& SpindleDrive::last_error() const { return impl_->last_error; }
 void SpindleDrive::spin_up(double rpm, Done done) { impl_->spin_up(rpm, std::move(done)); }

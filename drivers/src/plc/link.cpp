@@ -440,7 +440,7 @@ void Link::accept_cycle() {
 }
 
 Status Link::report_result(CycleResult result) {
-  if (result == CycleResult::none) return Error{"plc.bad_result", "a cycle result must be OK, NOK or re-grind"};
+  if (result == CycleResult::none) return Error{"plc.bad_result", "a cycle result must be OK, NOK, re-grind or FAULT"};
   impl_->queue([result](FettleOutputs& o) {
     o.result = result;
     o.result_toggle ^= 1;

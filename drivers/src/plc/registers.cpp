@@ -47,6 +47,7 @@ std::string_view name(CycleResult r) {
     case CycleResult::ok: return "OK";
     case CycleResult::nok: return "NOK";
     case CycleResult::regrind: return "re-grind";
+    case CycleResult::fault: return "FAULT";
   }
   return "?";
 }
@@ -157,7 +158,7 @@ Decoded<FettleOutputs> decode_fettle_block(std::span<const std::uint16_t> regs, 
   const int n = std::clamp(limits.slide_positions, 1, 0xFFFF);
   out.slide_target = c.range(reg::slide_target, 0, n, positions_text(n));
   out.slide_command_toggle = c.range(reg::slide_command_toggle, 0, 1, kToggle);
-  out.result = static_cast<CycleResult>(c.range(reg::cycle_result, 0, 3, "0 (none), 1 (OK), 2 (NOK), 3 (re-grind)"));
+  out.result = static_cast<CycleResult>(c.range(reg::cycle_result, 0, 4, "0 (none), 1 (OK), 2 (NOK), 3 (re-grind), 4 (FAULT)"));
   out.result_toggle = c.range(reg::cycle_result_toggle, 0, 1, kToggle);
   out.fault_code = static_cast<std::uint16_t>(c.raw(reg::fault_code));
   out.fault_latched = c.range(reg::fault_latched, 0, 1, kToggle) == 1;

@@ -55,7 +55,9 @@ inline constexpr int map_size = 26;
 std::string_view register_name(int offset);
 
 enum class SlideStatus : std::uint16_t { unknown = 0, at_home = 1, at_position = 2, moving = 3, fault = 4 };
-enum class CycleResult : std::uint16_t { none = 0, ok = 1, nok = 2, regrind = 3 };
+/// The result of a cycle the PLC requested: every accepted request ends in exactly one (fault:
+/// the cycle ended in a fault or an Abort; fault_code holds the fault when one latched).
+enum class CycleResult : std::uint16_t { none = 0, ok = 1, nok = 2, regrind = 3, fault = 4 };
 
 std::string_view name(SlideStatus s);
 std::string_view name(CycleResult r);

@@ -13,6 +13,7 @@
 //   drive.activate_async(done);        // NMT reset, boot-up, SDO configuration, NMT start
 //   drive.spin_up(rpm, done);  drive.spin_down(done);
 //   drive.deactivate();                // target 0, the drive ramps down; a later activate() starts again
+//   drive.deactivate_async(done);      // ... and releases the drive before the program exits
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -89,6 +90,10 @@ class SpindleDevice : public Device {
   /// boot-up, configuration, NMT start); `done` when it is ready to spin up. activate() begins
   /// the same and returns at once; status().configured says when it is done.
   virtual void activate_async(Done done) = 0;
+  /// deactivate() with its completion: the device is also released, so the program may exit
+  /// next without the device faulting (for SpindleDrive: the drive stops watching our heartbeat
+  /// and goes to "switch on disabled").
+  virtual void deactivate_async(Done done) = 0;
   /// Enables the drive and reaches `rpm`; refused while a fault is latched.
   virtual void spin_up(double rpm, Done done) = 0;
   /// Target 0, waits for standstill, then leaves the drive switched on but without torque.
@@ -120,6 +125,11 @@ class SpindleDrive final : public SpindleDevice {
   /// Fails the running operation ("spindle.inactive") and sets the target to 0 (the drive ramps
   /// down on its own); the bus and both heartbeats stay, so the drive does not fault.
   void deactivate() override;
+  /// deactivate(), then disable voltage (controlword 0x00: "switch on disabled") and switch the
+  /// drive's heartbeat consumer off (0x1016:01 = 0): a clean stop of fettled leaves the drive
+  /// without the heartbeat fault 0x8130 (docs/spindle-canopen.md). A spinning wheel coasts: spin
+  /// it down first.
+  void deactivate_async(Done done) override;
   [[nodiscard]] Lifecycle lifecycle() const override;
   [[nodiscard]] const Error& last_error() const override;
 
