@@ -32,8 +32,13 @@ const std::vector<FaultInfo>& fault_table() {
       {robot_fault, "robot.fault", abort, "the robot reported FAULT during a run",
        "check the robot controller's error log; reset the robot, then Clear, Reset, Start"},
       {robot_link_lost_moving, "robot.link_lost_moving", abort,
-       "the robot link was lost during an upload or a run", "check the robot controller and the network"},
-      {robot_unavailable, "robot.unavailable", hold, "the robot is not connected or not ready when the cycle needs it",
+       "the robot link was lost during an upload or a run; a protocol error from the robot (a wrong sequence number, "
+       "a line that does not parse, a reply that answers nothing) takes the link down too",
+       "check the robot controller and the network; a protocol error is in the log with the line "
+       "(docs/robot-protocol.md)"},
+      {robot_unavailable, "robot.unavailable", hold,
+       "the robot is not connected or not ready when the cycle needs it (also a lost link or protocol error while "
+       "nothing moves)",
        "start the robot program (it must accept HELLO on [robot] address/port)"},
       {robot_timeout, "robot.timeout", abort, "the robot did not finish the run within [robot] run_timeout_ms",
        "check the robot; the run timeout must exceed the longest trajectory"},

@@ -249,6 +249,11 @@ asio::awaitable<void> Runtime::Impl::stop_spindle() {
 /// The last thing before fettled exits: the drive stops watching our heartbeat, so a clean stop
 /// leaves it without a heartbeat fault (only SIGKILL may; docs/daemon.md).
 asio::awaitable<void> Runtime::Impl::release_spindle() {
+  if (!spindle->status().heartbeat_ok) {  // the bus or the drive is gone: nothing to tell it
+    log->info("spindle not released: the drive's heartbeat is missing");
+    spindle->deactivate();
+    co_return;
+  }
   auto st = co_await await_op<Status>(
       nullptr, [this](std::function<void(Status)> d) { spindle->deactivate_async(d); }, milliseconds(1000));
   if (!st || !*st) log->warn("spindle release: {}", st ? st->error().message : "timeout");
