@@ -373,6 +373,16 @@ std::optional<int> Fettled::reaped_;
 TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
   ASSERT_TRUE(reaches(State::stopped, 300s));
   ASSERT_TRUE(to_execute());
+  {
+    // The PLC sees every state fettled enters, the acting ones too, in order.
+    const std::vector<State> path{State::stopped, State::resetting, State::idle, State::starting, State::execute};
+    const auto seen = cell_->plc().states;
+    auto it = seen.begin();
+    for (const auto s : path) {
+      it = std::find(it, seen.end(), s);
+      ASSERT_NE(it, seen.end()) << "the PLC never saw " << fettle::packml::name(s) << " in order";
+    }
+  }
   for (std::uint64_t seed = 1; seed <= 3; ++seed) ASSERT_TRUE(good_cycle(seed)) << "cycle " << seed << tail_log();
   const auto results = cell_->plc().results;
   ASSERT_EQ(results.size(), 3U);

@@ -180,6 +180,22 @@ TEST_F(PlcLinkTest, PackMLStateCodeReachesThePlc) {
   EXPECT_EQ(sim->registers().at(plc::reg::packml_state), 11);
 }
 
+// fettled passes through acting states within microseconds (Resetting -> Idle, Starting ->
+// Execute): each is on the register for a poll of its own, in order, so the PLC sees them all.
+TEST_F(PlcLinkTest, EveryStateReachesThePlcInOrderEvenTransientOnes) {
+  start_link();
+  expect_up();
+  using S = packml::State;
+  const std::vector<S> path{S::resetting, S::idle, S::starting, S::execute, S::holding, S::held};
+  for (const auto s : path) ASSERT_TRUE(link->set_state(s).ok());
+  ASSERT_TRUE(link->set_state(S::held).ok());  // the same state again is no new state
+  ASSERT_TRUE(sim_until(*sim, [](const auto& s) { return s.fettle.state == packml::State::held; }));
+  const auto seen = sim->snapshot().states;
+  ASSERT_GE(seen.size(), path.size());
+  const std::vector<S> tail(seen.end() - static_cast<std::ptrdiff_t>(path.size()), seen.end());
+  EXPECT_EQ(tail, path);
+}
+
 TEST_F(PlcLinkTest, CycleResultsReachThePlcEachOnce) {
   start_link();
   expect_up();

@@ -8,6 +8,7 @@
 #include <optional>
 #include <atomic>
 #include <cerrno>
+#include <deque>
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
@@ -88,6 +89,10 @@ struct Link::Impl {
   std::condition_variable wake;
   bool stop_requested = false;
   std::vector<std::function<void(FettleOutputs&)>> commands;
+  /// PackML states not yet written, oldest first: one per poll, so a PLC sees every state
+  /// fettled enters (acting states last microseconds), in order (docs/plc-interface.md).
+  std::deque<packml::State> states;
+  std::optional<packml::State> last_state_queued;
   LinkStatus shared_status;
 
   std::thread thread;
@@ -287,6 +292,11 @@ struct Link::Impl {
         down_reported = false;
         attempt = 0;
         log->info("PLC link up: {}", peer());
+        {
+          // after an outage the PLC needs where fettled is, not the states it went through meanwhile
+          std::lock_guard lock(mutex);
+          while (states.size() > 1) states.pop_front();
+        }
         publish();
         post(LinkUp{peer()});
       }
@@ -301,6 +311,11 @@ struct Link::Impl {
         pending.swap(commands);
       }
       for (auto& c : pending) c(outputs);
+      std::lock_guard lock(mutex);
+      if (!states.empty()) {
+        outputs.state = states.front();
+        states.pop_front();
+      }
     }
     ++outputs.heartbeat;
     const auto block = encode_fettle_block(outputs);
@@ -418,7 +433,9 @@ void Link::stop() {
 Status Link::set_state(packml::State state) {
   if (state == packml::State::undefined)
     return Error{"plc.bad_state", "PackML state Undefined (0) is never sent to the PLC"};
-  impl_->queue([state](FettleOutputs& o) { o.state = state; });
+  std::lock_guard lock(impl_->mutex);
+  if (impl_->last_state_queued != state) impl_->states.push_back(state);
+  impl_->last_state_queued = state;
   return {};
 }
 

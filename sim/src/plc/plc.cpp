@@ -188,6 +188,7 @@ struct PlcSimulator::Impl {
     }
     if (!last_state || *last_state != f.state) {
       last_state = f.state;
+      snap.states.push_back(f.state);
       note("fettle state " + std::string(packml::name(f.state)));
     }
     if (f.slide_command_toggle != last_slide_toggle) {

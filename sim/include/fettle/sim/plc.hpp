@@ -55,6 +55,7 @@ struct PlcSimSnapshot {
   int parts_requested = 0;  ///< cycle requests raised
   int cycles_accepted = 0;  ///< cycle requests acknowledged by Fettle
   std::vector<drivers::plc::CycleResult> results;
+  std::vector<packml::State> states;  ///< every PackML state Fettle wrote, in order (changes only)
   int commands_acknowledged = 0;  ///< PackML commands Fettle acknowledged
 };
 
