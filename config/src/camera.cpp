@@ -7,6 +7,7 @@ namespace fettle::config::detail {
 void read_camera(TableReader& root, SlideSection& slide, CameraSection& c) {
   if (auto t = root.table("slide", Need::required)) {
     t->numbers("photo_positions_mm", slide.photo_positions_mm, {-10000.0, 10000.0}, 1, 16, Need::required);
+    t->number("home_mm", slide.home_mm, {-10000.0, 10000.0});
     t->integer("travel_timeout_ms", slide.travel_timeout_ms, kTimeoutMs);
   }
   if (auto t = root.table("camera", Need::required)) {

@@ -34,6 +34,7 @@ struct Args {
   int recipe_id = 1;
   std::filesystem::path script;
   double run_for_s = 0.0;
+  const CLI::Option* listen_given = nullptr;
 };
 
 std::pair<std::string, int> split_listen(const std::string& s) {
@@ -67,12 +68,14 @@ bool read_stdin_lines(std::string& buffer, std::vector<std::string>& lines) {
   return true;
 }
 
-int run_plc(const Args& a) {
+int run_plc(Args a) {
   fettle::sim::PlcSimOptions o;
   if (!a.config.empty()) {
     const auto cell = fettle::config::load_cell(a.config);
+    if (a.listen_given->count() == 0) a.listen = cell.plc.address + ":" + std::to_string(cell.plc.port);
     o.register_base = cell.plc.register_base;
     o.photo_positions_mm = cell.slide.photo_positions_mm;
+    o.home_mm = cell.slide.home_mm;
   }
   std::tie(o.address, o.port) = split_listen(a.listen);
   if (a.register_base >= 0) o.register_base = a.register_base;
@@ -126,9 +129,12 @@ FETTLE_COMMAND("plc", [](CLI::App& app, const fettle::cli::Common&) {
       "plc",
       "Simulated cell PLC on Modbus TCP (register map: docs/plc-interface.md). Prints 'listening ADDRESS:PORT', "
       "then what happens; reads commands on stdin: part ID, reset, start, stop, hold, unhold, abort, clear, drop, "
-      "freeze on|off, slide-fault on|off, force OFFSET VALUE, release OFFSET|all, delay MS");
-  cmd->add_option("--listen", a->listen, "ADDRESS:PORT to listen on (port 0 = any free port)")->capture_default_str();
-  cmd->add_option("--config", a->config, "Cell file: takes [plc] register_base and [slide] photo_positions_mm")
+      "freeze on|off, slide-fault on|off, results-ack on|off, force OFFSET VALUE, release OFFSET|all, delay MS");
+  a->listen_given =
+      cmd->add_option("--listen", a->listen, "ADDRESS:PORT to listen on (port 0 = any free port)")->capture_default_str();
+  cmd->add_option("--cell,--config", a->config,
+                  "Cell file: listen on its [plc] address:port (unless --listen), take its register_base and [slide] "
+                  "photo_positions_mm, home_mm")
       ->check(CLI::ExistingFile);
   cmd->add_option("--register-base", a->register_base, "Holding-register address of the map's first register")
       ->check(CLI::Range(0, 65535 - 26));

@@ -283,6 +283,7 @@ class ScriptedPlc final : public ScriptedDevice<drivers::PlcDevice> {
   int slide_commands = 0;
   std::uint16_t fault_code = 0;  ///< the latched fault the PLC sees (0: none)
   packml::State shown = packml::State::undefined;  ///< the state fettled shows the PLC
+  std::vector<packml::State> states;  ///< every state fettled showed, in order (changes only)
 
   Status activate() override {
     if (auto st = ScriptedDevice::activate(); !st) return st;
@@ -290,25 +291,28 @@ class ScriptedPlc final : public ScriptedDevice<drivers::PlcDevice> {
     return {};
   }
   Status set_state(packml::State s) override {
+    if (states.empty() || states.back() != s) states.push_back(s);
     shown = s;
     return {};
   }
-  Status command_slide(int target) override {
-    ++slide_commands;
-    if (slide_faulted_) return {};  // a faulted axis does not move
-    emit(drivers::plc::SlideState{drivers::plc::SlideStatus::moving, position_});
+  Result<std::uint64_t> command_slide(int target) override {
+    const auto number = static_cast<std::uint64_t>(++slide_commands);
+    if (slide_faulted_) return number;  // a faulted axis does not move
+    acked_ = number;
+    emit(drivers::plc::SlideState{drivers::plc::SlideStatus::moving, target, acked_});
     auto timer = std::make_shared<boost::asio::steady_timer>(io_, slide_time);
     timer->async_wait([this, timer, target](const boost::system::error_code& ec) {
       if (ec || slide_faulted_) return;
       position_ = target;
       emit(drivers::plc::SlideState{
-          target == 0 ? drivers::plc::SlideStatus::at_home : drivers::plc::SlideStatus::at_position, target});
+          target == 0 ? drivers::plc::SlideStatus::at_home : drivers::plc::SlideStatus::at_position, target, acked_});
     });
-    return {};
+    return number;
   }
   void accept_cycle() override { ++accepted; }
   Status report_result(drivers::plc::CycleResult r) override {
     results.push_back(r);
+    if (holds_results) ++unacknowledged_;
     return {};
   }
   Status raise_fault(std::uint16_t code) override {
@@ -318,6 +322,7 @@ class ScriptedPlc final : public ScriptedDevice<drivers::PlcDevice> {
   [[nodiscard]] drivers::plc::LinkStatus status() const override {
     drivers::plc::LinkStatus s;
     s.up = up_;
+    s.results_waiting = unacknowledged_;
     return s;
   }
 
@@ -327,9 +332,17 @@ class ScriptedPlc final : public ScriptedDevice<drivers::PlcDevice> {
     emit(drivers::plc::PackMLCommand{c});
   }
   void request(int recipe_id) { emit(drivers::plc::CycleRequest{recipe_id}); }
+  /// While set, the PLC does not acknowledge the results it gets (cycle_result_ack).
+  bool holds_results = false;
+  /// The PLC acknowledges the results it got.
+  void acknowledge_results() {
+    holds_results = false;
+    unacknowledged_ = 0;
+    emit(drivers::plc::ResultAcknowledged{results.empty() ? drivers::plc::CycleResult::none : results.back()});
+  }
   void fault_slide() {
     slide_faulted_ = true;
-    emit(drivers::plc::SlideState{drivers::plc::SlideStatus::fault, position_});
+    emit(drivers::plc::SlideState{drivers::plc::SlideStatus::fault, position_, acked_});
   }
   /// The PLC stops answering (its heartbeat froze).
   void drop() {
@@ -344,7 +357,7 @@ class ScriptedPlc final : public ScriptedDevice<drivers::PlcDevice> {
   void link_up() {
     up_ = true;
     emit(drivers::plc::LinkUp{"scripted"});
-    emit(drivers::plc::SlideState{drivers::plc::SlideStatus::at_home, 0});
+    emit(drivers::plc::SlideState{drivers::plc::SlideStatus::at_home, 0, acked_});
   }
   void emit(drivers::plc::Event e) {
     boost::asio::post(io_, [h = on_event_, e = std::move(e)] { h(e); });
@@ -355,6 +368,8 @@ class ScriptedPlc final : public ScriptedDevice<drivers::PlcDevice> {
   bool up_ = false;
   bool slide_faulted_ = false;
   int position_ = 0;
+  std::uint64_t acked_ = 0;
+  int unacknowledged_ = 0;
 };
 
 /// Processing without vision or planning: a short valid trajectory (or the scripted error)

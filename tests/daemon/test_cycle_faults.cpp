@@ -4,6 +4,7 @@
 // motion stopped, that the cycle's record ends with the step the fault ended, and that the cell
 // recovers to a good cycle after the PLC's Reset. test_fettled.cpp runs a few of these end to
 // end against the simulated cell's real protocols.
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -169,6 +170,20 @@ class CycleFaults : public ::testing::Test {
     EXPECT_EQ(state(), State::execute);
   }
 
+  /// The states fettled showed the PLC from the first `from` on are exactly `expected`, in
+  /// order: every PackML state it enters, the acting ones (Holding, Clearing, ...) too.
+  void expect_states_from(State from, const std::vector<State>& expected) {
+    const auto& seen = plc_->states;
+    std::string text;
+    for (const auto s : seen) text += std::string(fettle::packml::name(s)) + " ";
+    // the last occurrence of `from` that starts the expected run
+    for (std::size_t i = seen.size(); i-- > 0;)
+      if (seen[i] == from && i + expected.size() <= seen.size() &&
+          std::equal(expected.begin(), expected.end(), seen.begin() + static_cast<std::ptrdiff_t>(i)))
+        return;
+    ADD_FAILURE() << "states shown to the PLC: " << text;
+  }
+
   /// Brings the cell to Execute and requests a cycle of recipe `recipe_id`.
   void start_cycle(int recipe_id = 1) {
     ASSERT_TRUE(to_execute());
@@ -210,12 +225,29 @@ TEST_F(CycleFaults, AGoodCycleRunsEveryStepAndPublishesOk) {
   expect_record("OK", -1);
 }
 
+// A result is never overwritten unread: the next cycle request is accepted only once the PLC
+// acknowledged the last result (cycle_result_ack, docs/plc-interface.md "Result").
+TEST_F(CycleFaults, TheNextRequestWaitsUntilThePlcAcknowledgedTheLastResult) {
+  plc_->holds_results = true;
+  start_cycle();
+  ASSERT_TRUE(run_until(io_, [&] { return !plc_->results.empty() && !cycle_running(); }));
+  plc_->request(1);
+  run_until(io_, [&] { return plc_->accepted > 1; }, 300ms);
+  EXPECT_EQ(plc_->accepted, 1) << "a request was accepted while the last result was unacknowledged";
+  plc_->acknowledge_results();
+  ASSERT_TRUE(run_until(io_, [&] { return plc_->results.size() == 2; })) << fettle::packml::name(state());
+  EXPECT_EQ(plc_->accepted, 2);
+  EXPECT_EQ(plc_->results.back(), fettle::drivers::plc::CycleResult::ok);
+}
+
 TEST_F(CycleFaults, PlcLinkLostWhileNothingMovesHolds) {
   start_cycle();
   ASSERT_TRUE(run_until(io_, [&] { return plc_->slide_commands > 0; }));
   plc_->drop();
   expect_fault(FaultCode::plc_link_lost, State::held);
+  expect_states_from(State::execute, {State::execute, State::holding, State::held});
   expect_recovery();
+  expect_states_from(State::held, {State::held, State::unholding, State::execute});
 }
 
 TEST_F(CycleFaults, PlcLinkLostWhileGrindingAborts) {
@@ -224,7 +256,10 @@ TEST_F(CycleFaults, PlcLinkLostWhileGrindingAborts) {
   plc_->drop();
   expect_fault(FaultCode::plc_link_lost_moving, State::aborted);
   EXPECT_GE(robot_->stops, 1) << "the robot is told STOP first";
+  expect_states_from(State::execute, {State::execute, State::aborting, State::aborted});
   expect_recovery();
+  expect_states_from(State::aborted, {State::aborted, State::clearing, State::stopped, State::resetting, State::idle,
+                                      State::starting, State::execute});
 }
 
 // The slide already in fault when the cycle commands it: fettled reads the fault it already

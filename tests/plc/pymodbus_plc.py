@@ -11,8 +11,11 @@ prints what it sees, one line each, flushed:
     result N
     command 3 sent
     command acknowledged
+    slide to N
 It raises one cycle request (--recipe) once Fettle's heartbeat runs, and after Fettle
-accepts it sends one PackML command (--command, 0 = none).
+accepts it sends one PackML command (--command, 0 = none). It acknowledges every result
+it reads, and takes every slide command at once: the slide is at its target in the same
+update that acknowledges the command (a move shorter than one of Fettle's polls).
 Written for python3-pymodbus 3.0 (Debian 12).
 """
 import argparse
@@ -24,7 +27,7 @@ from pymodbus.server.async_io import ModbusTcpServer
 
 HR = 3  # holding registers
 # Offsets from register_base (docs/plc-interface.md).
-VERSION, PLC_HB, REQ_TOGGLE, RECIPE, SLIDE_STATE, SLIDE_POS, CMD, CMD_TOGGLE = range(8)
+VERSION, PLC_HB, REQ_TOGGLE, RECIPE, SLIDE_STATE, SLIDE_POS, CMD, CMD_TOGGLE, SLIDE_ACK, RESULT_ACK = range(10)
 F_HB, F_ACK, F_STATE, F_SLIDE_TARGET, F_SLIDE_TOGGLE, F_RESULT, F_RESULT_TOGGLE, F_FAULT, F_LATCHED, F_CMD_ACK = range(
     16, 26
 )
@@ -52,14 +55,13 @@ async def run(args):
     def put(offset, value):
         store.setValues(HR, base + offset, [value])
 
-    put(VERSION, 1)
+    put(VERSION, 2)
     put(SLIDE_STATE, 1)  # at home
     heartbeat = 0
     first_hb = None
     hb_running = False
     requested = accepted = command_sent = command_acked = False
     last_state = None
-    last_result_toggle = 0
     while not serving.done():
         heartbeat = (heartbeat + 1) % 65536
         put(PLC_HB, heartbeat)
@@ -81,9 +83,15 @@ async def run(args):
         if hb_running and state != last_state:
             last_state = state
             say(f"state {state}")
-        if get(F_RESULT_TOGGLE) != last_result_toggle:
-            last_result_toggle = get(F_RESULT_TOGGLE)
+        if hb_running and get(F_RESULT_TOGGLE) != get(RESULT_ACK):
             say(f"result {get(F_RESULT)}")
+            put(RESULT_ACK, get(F_RESULT_TOGGLE))
+        if hb_running and get(F_SLIDE_TOGGLE) != get(SLIDE_ACK):
+            target = get(F_SLIDE_TARGET)
+            put(SLIDE_POS, target)
+            put(SLIDE_STATE, 1 if target == 0 else 2)
+            put(SLIDE_ACK, get(F_SLIDE_TOGGLE))
+            say(f"slide to {target}")
         if accepted and args.command and not command_sent:
             put(CMD, args.command)
             put(CMD_TOGGLE, 1)

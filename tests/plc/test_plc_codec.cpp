@@ -22,6 +22,8 @@ plc::PlcInputs sample_inputs() {
   in.slide_position = 2;
   in.command = packml::Command::clear;
   in.command_toggle = 1;
+  in.slide_command_ack = 1;
+  in.result_ack = 1;
   return in;
 }
 
@@ -97,16 +99,22 @@ TEST(PlcCodec, FettleBlockRoundTrips) {
   EXPECT_EQ(d.value, out);
 }
 
+// A PLC written for map version 1 has no slide and result acknowledges: refused, never half-served.
 TEST(PlcCodec, WrongInterfaceVersionIsAViolation) {
-  const auto v = plc_with(plc::reg::interface_version, 2);
-  ASSERT_EQ(v.size(), 1U);
-  EXPECT_EQ(v[0].offset, plc::reg::interface_version);
-  EXPECT_EQ(v[0].value, 2);
+  EXPECT_EQ(plc::kInterfaceVersion, 2);
+  for (const int version : {0, 1, 3}) {
+    const auto v = plc_with(plc::reg::interface_version, static_cast<std::uint16_t>(version));
+    ASSERT_EQ(v.size(), 1U) << version;
+    EXPECT_EQ(v[0].offset, plc::reg::interface_version);
+    EXPECT_EQ(v[0].value, version);
+  }
 }
 
 TEST(PlcCodec, ToggleOtherThanZeroOrOneIsAViolation) {
   EXPECT_EQ(plc_with(plc::reg::cycle_request_toggle, 2).at(0).offset, plc::reg::cycle_request_toggle);
   EXPECT_EQ(plc_with(plc::reg::packml_command_toggle, 7).at(0).offset, plc::reg::packml_command_toggle);
+  EXPECT_EQ(plc_with(plc::reg::slide_command_ack, 2).at(0).offset, plc::reg::slide_command_ack);
+  EXPECT_EQ(plc_with(plc::reg::cycle_result_ack, 65535).at(0).offset, plc::reg::cycle_result_ack);
 }
 
 TEST(PlcCodec, UnknownSlideStateIsAViolation) {
@@ -175,6 +183,9 @@ TEST(PlcCodec, DescribeNamesRegisterValueAndAllowedValues) {
 TEST(PlcCodec, MapLayoutIsTheDocumentedOne) {
   EXPECT_EQ(plc::register_name(0), "interface_version");
   EXPECT_EQ(plc::register_name(7), "packml_command_toggle");
+  EXPECT_EQ(plc::register_name(8), "slide_command_ack");
+  EXPECT_EQ(plc::register_name(9), "cycle_result_ack");
+  EXPECT_EQ(plc::reg::plc_block_size, 10);
   EXPECT_EQ(plc::register_name(16), "fettle_heartbeat");
   EXPECT_EQ(plc::register_name(25), "packml_command_ack");
   EXPECT_EQ(plc::register_name(10), "reserved");

@@ -170,6 +170,68 @@ TEST_F(PlcLinkTest, SlideCommandTravelsAndArrives) {
   EXPECT_DOUBLE_EQ(sim->snapshot().slide_mm, -60.0);
 }
 
+// A slide command is done only when the PLC acknowledged it (slide_command_ack) and reports the
+// slide at its target: an earlier "at position" is never taken for the new command.
+TEST_F(PlcLinkTest, ASlideMoveIsDoneOnlyOnceThePlcAcknowledgedItsCommand) {
+  start_link();
+  expect_up();
+  const auto first = link->command_slide(2);
+  ASSERT_TRUE(first.ok());
+  EXPECT_EQ(*first, 1U);
+  const auto done = [](std::uint64_t number, plc::SlideStatus status, int position) {
+    return [=](const plc::SlideState& s) {
+      return s.command_acked >= number && s.status == status && s.position == position;
+    };
+  };
+  ASSERT_TRUE(events.wait_for<plc::SlideState>(kWait, done(*first, plc::SlideStatus::at_position, 2)))
+      << events.dump();
+  // Again to the same position: the slide is there already, yet the command counts only once the
+  // PLC took it.
+  const auto second = link->command_slide(2);
+  ASSERT_TRUE(second.ok());
+  EXPECT_EQ(*second, 2U);
+  const auto again = events.wait_for<plc::SlideState>(kWait, done(*second, plc::SlideStatus::at_position, 2));
+  ASSERT_TRUE(again) << events.dump();
+  EXPECT_EQ(sim->registers().at(plc::reg::slide_command_ack), sim->registers().at(plc::reg::slide_command_toggle));
+}
+
+// Results go out one at a time: the next only once the PLC acknowledged the last (cycle_result_ack),
+// so a PLC never loses one, even when two come within one of its scans.
+TEST_F(PlcLinkTest, ResultsWaitForThePlcsAcknowledgeAndNoneIsLost) {
+  start_link();
+  expect_up();
+  ASSERT_TRUE(sim->apply("results-ack off").ok());
+  ASSERT_TRUE(link->report_result(plc::CycleResult::ok).ok());
+  ASSERT_TRUE(link->report_result(plc::CycleResult::fault).ok());
+  EXPECT_EQ(link->status().results_waiting, 2);
+  ASSERT_TRUE(sim_until(*sim, [](const auto& s) { return s.results.size() == 1; }));
+  std::this_thread::sleep_for(milliseconds(150));  // several polls: the second must wait
+  EXPECT_EQ(sim->snapshot().results, std::vector<plc::CycleResult>{plc::CycleResult::ok});
+  EXPECT_EQ(link->status().results_waiting, 2);
+  EXPECT_TRUE(events.all<plc::ResultAcknowledged>().empty());
+  ASSERT_TRUE(sim->apply("results-ack on").ok());
+  ASSERT_TRUE(sim_until(*sim, [](const auto& s) { return s.results.size() == 2; }));
+  EXPECT_EQ(sim->snapshot().results, (std::vector<plc::CycleResult>{plc::CycleResult::ok, plc::CycleResult::fault}));
+  const auto acked = events.wait_for<plc::ResultAcknowledged>(
+      kWait, [](const plc::ResultAcknowledged& r) { return r.result == plc::CycleResult::fault; });
+  ASSERT_TRUE(acked) << events.dump();
+  EXPECT_EQ(link->status().results_waiting, 0);
+}
+
+// When fettled starts, acknowledges the PLC holds from before are taken as what they say: none of
+// Fettle's slide commands or results is pending, so the PLC neither moves nor reads a result.
+TEST_F(PlcLinkTest, AtStartNothingOfFettlesIsPendingWhateverThePlcAcknowledged) {
+  sim->force_register(plc::reg::slide_command_ack, 1);
+  sim->force_register(plc::reg::cycle_result_ack, 1);
+  start_link();
+  expect_up();
+  ASSERT_TRUE(sim_until(*sim, [](const auto& s) { return s.fettle_written; }));
+  const auto regs = sim->registers();
+  EXPECT_EQ(regs.at(plc::reg::slide_command_toggle), 1);
+  EXPECT_EQ(regs.at(plc::reg::cycle_result_toggle), 1);
+  EXPECT_EQ(link->status().results_waiting, 0);
+}
+
 TEST_F(PlcLinkTest, PackMLStateCodeReachesThePlc) {
   start_link();
   expect_up();
@@ -360,8 +422,9 @@ TEST_F(PlcLinkTest, CycleRequestWithoutRecipeIsOutOfRange) {
   EXPECT_TRUE(events.all<plc::CycleRequest>().empty());
 }
 
+// A PLC program written for map version 1 (no slide or result acknowledges) never comes up.
 TEST_F(PlcLinkTest, WrongInterfaceVersionNeverComesUp) {
-  sim->force_register(plc::reg::interface_version, 2);
+  sim->force_register(plc::reg::interface_version, 1);
   start_link();
   const auto bad = events.wait_for<plc::ValueOutOfRange>(kWait);
   ASSERT_TRUE(bad) << events.dump();

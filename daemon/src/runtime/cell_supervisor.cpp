@@ -271,8 +271,10 @@ asio::awaitable<void> Runtime::Impl::slide_home_best_effort() {
     log->warn("the slide is in fault at position {}: not sent home (the PLC must clear its fault)", slide.position);
     co_return;
   }
-  (void)plc_link->command_slide(0);
-  for (int i = 0; i < cell.slide.travel_timeout_ms / 50 && plc_up && slide.status != plc::SlideStatus::at_home &&
+  const auto command = plc_link->command_slide(0);
+  if (!command) co_return;
+  for (int i = 0; i < cell.slide.travel_timeout_ms / 50 && plc_up &&
+                  !(slide.command_acked >= *command && slide.status == plc::SlideStatus::at_home) &&
                   slide.status != plc::SlideStatus::fault;
        ++i)
     co_await sleep(milliseconds(50));
@@ -333,12 +335,16 @@ void Runtime::Impl::on_plc(const plc::Event& e) {
           if (slide_wait) {
             if (ev.status == plc::SlideStatus::fault) {
               slide_wait->set(Error{"slide.fault", "the PLC reports a slide fault"});
-            } else if ((slide_target == 0 && ev.status == plc::SlideStatus::at_home) ||
-                       (slide_target > 0 && ev.status == plc::SlideStatus::at_position &&
-                        ev.position == slide_target)) {
+            } else if (ev.command_acked >= slide_command &&
+                       ((slide_target == 0 && ev.status == plc::SlideStatus::at_home) ||
+                        (slide_target > 0 && ev.status == plc::SlideStatus::at_position &&
+                         ev.position == slide_target))) {
               slide_wait->set(Status{});
             }
           }
+        } else if constexpr (std::is_same_v<E, plc::ResultAcknowledged>) {
+          log->debug("the PLC acknowledged result {}", plc::name(ev.result));
+          maybe_start_cycle();
         } else if constexpr (std::is_same_v<E, plc::PackMLCommand>) {
           (void)command(ev.command, "PLC");
         } else if constexpr (std::is_same_v<E, plc::ValueOutOfRange>) {

@@ -32,6 +32,12 @@ void Runtime::Impl::maybe_start_cycle() {
   }
   if (machine.state() != State::execute || !pending_recipe) return;
   if (options.max_cycles > 0 && cycles_in_execute >= options.max_cycles) return;
+  // The next request is accepted once the PLC acknowledged the last result (cycle_result_ack):
+  // a result is never overwritten unread (docs/plc-interface.md; test CycleFaults.*ResultAck*).
+  if (plc_link->status().results_waiting > 0) {
+    log->debug("cycle request for recipe {} waits for the PLC to acknowledge the last result", *pending_recipe);
+    return;
+  }
   const int recipe_id = *pending_recipe;
   pending_recipe.reset();
   plc_link->accept_cycle();
@@ -96,7 +102,9 @@ asio::awaitable<bool> Runtime::Impl::slide_to(Cycle& c, int target) {
   auto p = std::make_shared<Pending<Status>>(io);
   slide_wait = p;
   slide_target = target;
-  if (auto st = plc_link->command_slide(target); !st) co_return fail(c, st.error(), ErrorSource::plc, FaultCode::slide_fault);
+  auto command = plc_link->command_slide(target);
+  if (!command) co_return fail(c, command.error(), ErrorSource::plc, FaultCode::slide_fault);
+  slide_command = *command;
   c.cancel = [p] { p->cancel(); };
   if (!c.fault) {
     p->timer.expires_after(milliseconds(cell.slide.travel_timeout_ms));

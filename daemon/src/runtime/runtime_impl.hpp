@@ -166,6 +166,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   plc::SlideState slide{};
   std::shared_ptr<Pending<Status>> slide_wait;
   int slide_target = -1;
+  std::uint64_t slide_command = 0;  ///< the number of the slide command slide_wait waits for
   bool shutting_down = false;
   bool maintenance = false;
   Clock::time_point started = Clock::now();

@@ -47,7 +47,11 @@ struct Describer {
   }
   std::string operator()(const CycleRequest& e) const { return "CycleRequest(recipe " + std::to_string(e.recipe_id) + ")"; }
   std::string operator()(const SlideState& e) const {
-    return "SlideState(" + std::string(name(e.status)) + ", position " + std::to_string(e.position) + ")";
+    return "SlideState(" + std::string(name(e.status)) + ", position " + std::to_string(e.position) +
+           ", command " + std::to_string(e.command_acked) + " acknowledged)";
+  }
+  std::string operator()(const ResultAcknowledged& e) const {
+    return "ResultAcknowledged(" + std::string(name(e.result)) + ")";
   }
   std::string operator()(const PackMLCommand& e) const { return "PackMLCommand(" + std::string(packml::name(e.command)) + ")"; }
   std::string operator()(const ValueOutOfRange& e) const {
@@ -93,6 +97,12 @@ struct Link::Impl {
   /// fettled enters (acting states last microseconds), in order (docs/plc-interface.md).
   std::deque<packml::State> states;
   std::optional<packml::State> last_state_queued;
+  /// Slide commands not yet written, with their numbers: one at a time, each once the PLC
+  /// acknowledged the previous one.
+  std::deque<std::pair<std::uint64_t, int>> slide_commands;
+  std::uint64_t slide_commands_numbered = 0;
+  /// Results not yet written: one at a time, each once the PLC acknowledged the previous one.
+  std::deque<CycleResult> results;
   LinkStatus shared_status;
 
   std::thread thread;
@@ -109,6 +119,9 @@ struct Link::Impl {
   Clock::time_point heartbeat_changed_at{};
   int posted_request_toggle = -1;  // request toggle value already posted as CycleRequest
   std::optional<SlideState> posted_slide;
+  std::uint64_t slide_command_written = 0;  // number of the slide command on the wire
+  std::uint64_t slide_command_acked = 0;
+  bool result_unacked = false;  // a published result the PLC has not acknowledged yet
   std::vector<RangeViolation> active_violations;
   int attempt = 0;  // reconnect attempts in this outage
   LinkStatus st;    // published to shared_status after each step
@@ -131,6 +144,7 @@ struct Link::Impl {
     st.outputs = outputs;
     st.up = up;
     st.connected = ctx != nullptr;
+    st.results_waiting = result_unacked ? 1 : 0;
     std::lock_guard lock(mutex);
     shared_status = st;
   }
@@ -238,8 +252,16 @@ struct Link::Impl {
     } else {
       posted_request_toggle = -1;
     }
-    const SlideState slide{in.slide_status, in.slide_position};
-    if (!posted_slide || posted_slide->status != slide.status || posted_slide->position != slide.position) {
+    // Slide and result handshakes: acknowledged when the PLC's copy equals our toggle.
+    if (in.slide_command_ack == outputs.slide_command_toggle) slide_command_acked = slide_command_written;
+    if (result_unacked && in.result_ack == outputs.result_toggle) {
+      result_unacked = false;
+      publish();  // status() agrees with the event by the time it arrives
+      post(ResultAcknowledged{outputs.result});
+    }
+    const SlideState slide{in.slide_status, in.slide_position, slide_command_acked};
+    if (!posted_slide || posted_slide->status != slide.status || posted_slide->position != slide.position ||
+        posted_slide->command_acked != slide.command_acked) {
       post(slide);
       posted_slide = slide;
     }
@@ -278,7 +300,13 @@ struct Link::Impl {
     if (decoded.ok()) {
       // At the link's very first read a differing command toggle is a leftover from
       // before we ran: adopt it, never obey it.
-      if (first_read_since_start) outputs.command_ack_toggle = decoded.value.command_toggle;
+      // Likewise the PLC's acknowledges of our slide commands and results: nothing of ours is
+      // pending when we start.
+      if (first_read_since_start) {
+        outputs.command_ack_toggle = decoded.value.command_toggle;
+        outputs.slide_command_toggle = decoded.value.slide_command_ack;
+        outputs.result_toggle = decoded.value.result_ack;
+      }
       first_read_since_start = false;
       check_handshakes(decoded.value, violations);
     }
@@ -302,6 +330,7 @@ struct Link::Impl {
       }
       if (up) process(decoded.value);
     }
+    const bool acted = up && violations.empty();
 
     // Write our block (heartbeat, acknowledgements, state, commands).
     {
@@ -315,6 +344,22 @@ struct Link::Impl {
       if (!states.empty()) {
         outputs.state = states.front();
         states.pop_front();
+      }
+      // A slide command or result goes out only on a poll whose PLC block was read and valid, and
+      // once the PLC acknowledged the previous one.
+      if (acted && !slide_commands.empty() && slide_command_acked == slide_command_written) {
+        // Commands queued while the previous one was out: only the latest target matters.
+        while (slide_commands.size() > 1) slide_commands.pop_front();
+        slide_command_written = slide_commands.front().first;
+        outputs.slide_target = slide_commands.front().second;
+        outputs.slide_command_toggle ^= 1;
+        slide_commands.pop_front();
+      }
+      if (acted && !results.empty() && !result_unacked) {
+        outputs.result = results.front();
+        outputs.result_toggle ^= 1;
+        result_unacked = true;
+        results.pop_front();
       }
     }
     ++outputs.heartbeat;
@@ -439,17 +484,16 @@ Status Link::set_state(packml::State state) {
   return {};
 }
 
-Status Link::command_slide(int target) {
+Result<std::uint64_t> Link::command_slide(int target) {
   const int n = impl_->options.limits.slide_positions;
   if (target < 0 || target > n)
     return Error{"plc.bad_slide_target", "slide target " + std::to_string(target) + " does not exist: allowed 0 (home) to " +
                                              std::to_string(n) + " ([slide] photo_positions_mm has " +
                                              std::to_string(n) + ")"};
-  impl_->queue([target](FettleOutputs& o) {
-    o.slide_target = target;
-    o.slide_command_toggle ^= 1;
-  });
-  return {};
+  std::lock_guard lock(impl_->mutex);
+  const auto number = ++impl_->slide_commands_numbered;
+  impl_->slide_commands.emplace_back(number, target);
+  return number;
 }
 
 void Link::accept_cycle() {
@@ -458,10 +502,8 @@ void Link::accept_cycle() {
 
 Status Link::report_result(CycleResult result) {
   if (result == CycleResult::none) return Error{"plc.bad_result", "a cycle result must be OK, NOK, re-grind or FAULT"};
-  impl_->queue([result](FettleOutputs& o) {
-    o.result = result;
-    o.result_toggle ^= 1;
-  });
+  std::lock_guard lock(impl_->mutex);
+  impl_->results.push_back(result);
   return {};
 }
 
@@ -477,7 +519,9 @@ Status Link::raise_fault(std::uint16_t code) {
 
 LinkStatus Link::status() const {
   std::lock_guard lock(impl_->mutex);
-  return impl_->shared_status;
+  auto s = impl_->shared_status;
+  s.results_waiting += static_cast<int>(impl_->results.size());
+  return s;
 }
 
 const LinkOptions& Link::options() const { return impl_->options; }

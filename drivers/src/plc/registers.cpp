@@ -16,6 +16,8 @@ std::string_view register_name(int offset) {
     case reg::slide_position: return "slide_position";
     case reg::packml_command: return "packml_command";
     case reg::packml_command_toggle: return "packml_command_toggle";
+    case reg::slide_command_ack: return "slide_command_ack";
+    case reg::cycle_result_ack: return "cycle_result_ack";
     case reg::fettle_heartbeat: return "fettle_heartbeat";
     case reg::cycle_ack_toggle: return "cycle_ack_toggle";
     case reg::packml_state: return "packml_state";
@@ -126,6 +128,8 @@ Decoded<PlcInputs> decode_plc_block(std::span<const std::uint16_t> regs, const L
   else
     in.command = *command;
   in.command_toggle = c.range(reg::packml_command_toggle, 0, 1, kToggle);
+  in.slide_command_ack = c.range(reg::slide_command_ack, 0, 1, kToggle);
+  in.result_ack = c.range(reg::cycle_result_ack, 0, 1, kToggle);
   return d;
 }
 
@@ -140,6 +144,8 @@ PlcBlock encode_plc_block(const PlcInputs& in) {
   at(reg::slide_position) = static_cast<std::uint16_t>(in.slide_position);
   at(reg::packml_command) = static_cast<std::uint16_t>(in.command);
   at(reg::packml_command_toggle) = static_cast<std::uint16_t>(in.command_toggle);
+  at(reg::slide_command_ack) = static_cast<std::uint16_t>(in.slide_command_ack);
+  at(reg::cycle_result_ack) = static_cast<std::uint16_t>(in.result_ack);
   return b;
 }
 

@@ -100,6 +100,7 @@ struct PlcSimulator::Impl {
   int reply_delay_ms = 0;
   bool heartbeat_frozen = false;
   bool slide_faulted = false;
+  bool results_unread = false;  // "results-ack off": the PLC stops acknowledging results
   std::map<int, std::uint16_t> forced;
   std::deque<int> parts;
   std::deque<packml::Command> commands;
@@ -201,6 +202,8 @@ struct PlcSimulator::Impl {
         }
       }
       last_slide_toggle = f.slide_command_toggle;
+      // Taken, even by a faulted slide (whose state says it did not move): Fettle may send the next.
+      in.slide_command_ack = last_slide_toggle;
     }
     if (f.result_toggle != last_result_toggle) {
       if (last_result_toggle != -1) {
@@ -209,6 +212,8 @@ struct PlcSimulator::Impl {
       }
       last_result_toggle = f.result_toggle;
     }
+    // Read: acknowledged, so Fettle may publish the next result.
+    if (!results_unread && last_result_toggle != -1) in.result_ack = last_result_toggle;
     if (f.cycle_ack_toggle != last_ack_toggle) {
       if (last_ack_toggle != -1 && f.cycle_ack_toggle == in.cycle_request_toggle) {
         ++snap.cycles_accepted;
@@ -316,6 +321,12 @@ struct PlcSimulator::Impl {
       return {};
     }
     if (c == "freeze") return on_off(heartbeat_frozen);
+    if (c == "results-ack") {
+      bool ack = !results_unread;
+      if (auto st = on_off(ack); !st.ok()) return st;
+      results_unread = !ack;
+      return {};
+    }
     if (c == "slide-fault") {
       bool f = slide_faulted;
       if (auto st = on_off(f); !st.ok()) return st;
@@ -348,7 +359,7 @@ struct PlcSimulator::Impl {
       return {};
     }
     return bad("unknown command (part ID, reset, start, stop, hold, unhold, abort, clear, drop, freeze on|off, "
-               "slide-fault on|off, force OFFSET VALUE, release OFFSET|all, delay MS)");
+               "slide-fault on|off, results-ack on|off, force OFFSET VALUE, release OFFSET|all, delay MS)");
   }
 
   void queue_command(packml::Command c) {

@@ -9,6 +9,9 @@ namespace fettle::config {
 
 struct SlideSection {
   std::vector<double> photo_positions_mm{0.0};  ///< slide positions where the camera takes a view
+  /// Where the PLC parks the slide (slide_position 0), out of the robot's way; no view is taken
+  /// there. Fettle only commands it; the simulated PLC drives the slide there.
+  double home_mm = -100.0;
   int travel_timeout_ms = 15000;
 };
 

@@ -59,10 +59,19 @@ struct Reconnecting {
 struct CycleRequest {
   int recipe_id = 0;
 };
-/// The slide's state changed (and once after every LinkUp).
+/// The slide's state changed, or the PLC acknowledged a slide command (and once after every
+/// LinkUp). A commanded move is done when `command_acked` reached the number command_slide()
+/// returned and the status says the slide is at the target: a move shorter than one poll never
+/// shows "moving", and an old toggle after a reconnect is never taken for a new command.
 struct SlideState {
   SlideStatus status = SlideStatus::unknown;
-  int position = 0;  ///< 0 = home, 1..n photo position
+  int position = 0;               ///< 0 = home, 1..n photo position
+  std::uint64_t command_acked = 0;  ///< the last slide command (numbered from 1) the PLC acknowledged
+};
+/// The PLC acknowledged the last published cycle result (cycle_result_ack): the next one may be
+/// published, and the next cycle request may be accepted.
+struct ResultAcknowledged {
+  CycleResult result = CycleResult::none;
 };
 /// The PLC sent a PackML command. The link acknowledges it to the PLC itself; a Reset
 /// also clears the latched fault.
@@ -78,7 +87,8 @@ struct ValueOutOfRange {
   std::string allowed;
 };
 
-using Event = std::variant<LinkUp, LinkDown, Reconnecting, CycleRequest, SlideState, PackMLCommand, ValueOutOfRange>;
+using Event = std::variant<LinkUp, LinkDown, Reconnecting, CycleRequest, SlideState, ResultAcknowledged, PackMLCommand,
+                           ValueOutOfRange>;
 /// One line for logs and tests, e.g. "LinkDown(timeout: ...)".
 std::string describe(const Event& e);
 
@@ -107,6 +117,9 @@ struct LinkStatus {
   long long polls = 0;  ///< completed read+write exchanges
   FettleOutputs outputs;
   PlcInputs inputs;  ///< last valid PLC block
+  /// Results queued or published and not yet acknowledged by the PLC (cycle_result_ack); the
+  /// next cycle request is accepted only at 0 (docs/plc-interface.md, "Result").
+  int results_waiting = 0;
 };
 
 }  // namespace fettle::drivers::plc
@@ -122,8 +135,10 @@ class PlcDevice : public Device {
   [[nodiscard]] std::string_view kind() const override { return "plc"; }
   /// The PackML state shown to the PLC.
   virtual Status set_state(packml::State state) = 0;
-  /// Commands the camera slide: 0 = home, 1..n photo position n.
-  virtual Status command_slide(int target) = 0;
+  /// Commands the camera slide: 0 = home, 1..n photo position n. Returns the command's number
+  /// (1, 2, ...): the move is done when a SlideState with that `command_acked` or later shows the
+  /// slide at the target.
+  virtual Result<std::uint64_t> command_slide(int target) = 0;
   /// Accepts the pending cycle request.
   virtual void accept_cycle() = 0;
   virtual Status report_result(plc::CycleResult result) = 0;
@@ -160,9 +175,13 @@ class Link final : public PlcDevice {
   // Commands: validated here, queued, written at the next poll. An invalid argument is
   // an Error (and nothing is queued).
   Status set_state(packml::State state) override;
-  Status command_slide(int target) override;  ///< 0 = home, 1..n photo position n
+  /// 0 = home, 1..n photo position n. Commands go out one at a time: the next is written once
+  /// the PLC acknowledged the previous one (slide_command_ack).
+  Result<std::uint64_t> command_slide(int target) override;
   /// Accepts the pending cycle request: copies the request toggle to the acknowledge toggle.
   void accept_cycle() override;
+  /// Results go out one at a time, in order: the next is written once the PLC acknowledged the
+  /// previous one (cycle_result_ack), so none is overwritten unread.
   Status report_result(CycleResult result) override;
   /// Raises fault `code` (1..65535) and sets the latched fault bit. While latched, the
   /// first code stays; only a PackML Reset from the PLC clears it.

@@ -3,7 +3,7 @@
 // docs/plc-interface.md is the specification; this header must match it.
 //
 // Two blocks, addressed from [plc] register_base:
-//   offsets 0..7   written by the PLC, read by Fettle   (the "PLC block")
+//   offsets 0..9   written by the PLC, read by Fettle   (the "PLC block")
 //   offsets 16..25 written by Fettle, read by the PLC   (the "Fettle block")
 // Every value read is range-checked; decoding never guesses: a value outside its
 // allowed set is returned as a RangeViolation and the block must not be acted upon.
@@ -19,7 +19,8 @@
 namespace fettle::drivers::plc {
 
 /// The map version the PLC must report in register `interface_version`.
-inline constexpr int kInterfaceVersion = 1;
+/// Version 2 adds the PLC's acknowledges of slide commands and results (registers 8 and 9).
+inline constexpr int kInterfaceVersion = 2;
 
 /// Register offsets from register_base.
 namespace reg {
@@ -32,8 +33,10 @@ inline constexpr int slide_state = 4;
 inline constexpr int slide_position = 5;
 inline constexpr int packml_command = 6;
 inline constexpr int packml_command_toggle = 7;
+inline constexpr int slide_command_ack = 8;
+inline constexpr int cycle_result_ack = 9;
 inline constexpr int plc_block_start = 0;
-inline constexpr int plc_block_size = 8;
+inline constexpr int plc_block_size = 10;
 // Fettle → PLC
 inline constexpr int fettle_heartbeat = 16;
 inline constexpr int cycle_ack_toggle = 17;
@@ -72,6 +75,8 @@ struct PlcInputs {
   int slide_position = 0;  ///< 0 = home, 1..n photo position (with at_position, or the target while moving)
   packml::Command command = packml::Command::none;
   int command_toggle = 0;  ///< 0/1; a change is a new PackML command
+  int slide_command_ack = 0;  ///< 0/1; the PLC copies slide_command_toggle once it has taken the command
+  int result_ack = 0;         ///< 0/1; the PLC copies cycle_result_toggle once it has read the result
 
   bool operator==(const PlcInputs&) const = default;
 };

@@ -91,7 +91,8 @@ class PlcSimulator {
   void set_slide_gate(std::function<bool(int position, double slide_mm)> gate);
 
   /// Applies one command line: part ID | reset | stop | start | hold | unhold | abort | clear |
-  /// drop | freeze on|off | slide-fault on|off | force OFFSET VALUE | release OFFSET|all | delay MS.
+  /// drop | freeze on|off | slide-fault on|off | results-ack on|off | force OFFSET VALUE |
+  /// release OFFSET|all | delay MS.
   Status apply(const std::string& line);
 
   [[nodiscard]] PlcSimSnapshot snapshot() const;
