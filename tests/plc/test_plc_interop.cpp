@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "../support/sim_cell_file.hpp"
 #include "event_log.hpp"
 
 namespace plc = fettle::drivers::plc;
@@ -201,6 +202,41 @@ TEST(PlcInterop, LinkTalksToAPymodbusPlcAndRecoversWhenItRestarts) {
   EXPECT_EQ(link.status().connects, 2);
 }
 
+// The handshakes of map version 2 with a PLC that is not Fettle's code: a slide move shorter than
+// one poll (acknowledged and arrived in one update, never "moving") completes, and two results in a
+// row both reach the PLC, in order, each acknowledged.
+TEST(PlcInterop, SlideAndResultHandshakesWithAPymodbusPlc) {
+  if (!pymodbus_available())
+    GTEST_SKIP() << "python3-pymodbus (with python3-serial-asyncio) is not importable by " << kPython;
+  Child py({kPython, kScript, "--recipe", "5"});
+  ASSERT_TRUE(py.started());
+  const auto port = listening_port(py);
+  ASSERT_TRUE(port) << "pymodbus PLC did not report its port:\n" << py.output();
+  EventLog events;
+  plc::Link link(events.executor(), fast_options(*port), events.handler());
+  link.start();
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+
+  const auto command = link.command_slide(2);
+  ASSERT_TRUE(command.ok());
+  const auto arrived = events.wait_for<plc::SlideState>(kWait, [&](const plc::SlideState& s) {
+    return s.command_acked >= *command && s.status == plc::SlideStatus::at_position && s.position == 2;
+  });
+  ASSERT_TRUE(arrived) << events.dump() << py.output();
+  ASSERT_TRUE(py.wait_line(std::regex("^slide to 2$"), kWait)) << py.output();
+  for (const auto& s : events.all<plc::SlideState>())
+    EXPECT_NE(s.status, plc::SlideStatus::moving) << "this PLC never reports moving: " << events.dump();
+
+  ASSERT_TRUE(link.report_result(plc::CycleResult::nok).ok());
+  ASSERT_TRUE(link.report_result(plc::CycleResult::fault).ok());
+  ASSERT_TRUE(py.wait_line(std::regex("^result 2$"), kWait)) << py.output();
+  ASSERT_TRUE(py.wait_line(std::regex("^result 4$"), kWait)) << py.output();
+  ASSERT_TRUE(events.wait_for<plc::ResultAcknowledged>(
+      kWait, [](const plc::ResultAcknowledged& r) { return r.result == plc::CycleResult::fault; }))
+      << events.dump();
+  EXPECT_EQ(link.status().results_waiting, 0);
+}
+
 TEST(PlcInterop, MbpollReadsTheSimulatedPlcHoldingRegisters) {
   if (!std::filesystem::exists("/usr/bin/mbpoll")) GTEST_SKIP() << "mbpoll is not installed";
   Child sim({kSim, "plc", "--listen", "127.0.0.1:0", "--run-for-s", "30"});
@@ -213,7 +249,7 @@ TEST(PlcInterop, MbpollReadsTheSimulatedPlcHoldingRegisters) {
                                    " -1 127.0.0.1",
                                rc);
   ASSERT_EQ(rc, 0) << out;
-  EXPECT_NE(out.find("[1]: \t1\n"), std::string::npos) << "interface_version should read 1:\n" << out;
+  EXPECT_NE(out.find("[1]: \t2\n"), std::string::npos) << "interface_version should read 2:\n" << out;
   EXPECT_NE(out.find("[5]: \t1\n"), std::string::npos) << "slide_state should read 1 (at home):\n" << out;
   EXPECT_NE(out.find("[10]: \t"), std::string::npos) << out;
 }
@@ -241,6 +277,27 @@ TEST(PlcInterop, FettleSimPlcProgramTakesCommandsOnStdin) {
   ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
   sim.write_line("teleport");
   ASSERT_TRUE(sim.wait_line(std::regex("^error .*unknown command"), kWait)) << sim.output();
+}
+
+// A cell assembled from the separate simulators: `fettle-sim plc --cell` listens where the cell
+// file's [plc] says, and fettled's link to that address comes up.
+TEST(PlcInterop, FettleSimPlcWithACellFileListensWhereTheCellSays) {
+  char tmpl[] = "/tmp/fettle-plc-cell-XXXXXX";
+  ASSERT_NE(::mkdtemp(tmpl), nullptr);
+  const std::filesystem::path dir(tmpl);
+  const int port = fettle::test::free_tcp_port();
+  const auto cell = fettle::test::write_sim_cell(dir, {port, fettle::test::free_tcp_port(), 1});
+  Child sim({kSim, "plc", "--cell", cell.string(), "--heartbeat-period-ms", "20", "--run-for-s", "30"});
+  ASSERT_TRUE(sim.started());
+  const auto listening = listening_port(sim);
+  ASSERT_TRUE(listening) << sim.output();
+  EXPECT_EQ(*listening, port);
+  EventLog events;
+  plc::Link link(events.executor(), fast_options(port), events.handler());
+  link.start();
+  EXPECT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump() << sim.output();
+  link.stop();
+  std::filesystem::remove_all(dir);
 }
 
 TEST(PlcInterop, FettleSimPlcRejectsABadListenAddress) {
