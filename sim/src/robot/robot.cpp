@@ -272,7 +272,14 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
     watchdog_.expires_after(std::chrono::milliseconds(watchdog_ms_));
     watchdog_.async_wait([self = shared_from_this()](const boost::system::error_code& e) {
       if (e || self->closed_) return;
-      self->close("watchdog: no line from the client for " + std::to_string(self->watchdog_ms_) + " ms");
+      // Motion stops first; the FAULT tells a client that is still listening why the line goes.
+      const int running = self->st_ == St::running ? self->id_ : 0;
+      if (self->st_ == St::running) self->halt("watchdog");
+      self->st_ = St::faulted;
+      self->send("FAULT " + std::to_string(running) + " WATCHDOG no line for " + std::to_string(self->watchdog_ms_) +
+                     " ms",
+                 false);
+      self->close_after_flush("watchdog: no line from the client for " + std::to_string(self->watchdog_ms_) + " ms");
     });
   }
 
@@ -390,7 +397,8 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
 
   void on_p(const proto::Line& l, const std::string& text) {
     if (st_ == St::discarding) return;
-    if (st_ != St::receiving || chunk_left_ == 0) return nak(l.seq, proto::nak::state, "P outside a chunk");
+    if (st_ != St::receiving) return nak(l.seq, proto::nak::state, "no upload in progress (send TRAJ)");
+    if (chunk_left_ == 0) return nak(l.seq, proto::nak::order, "P outside a chunk (send CHUNK first)");
     if (pending_p_) return nak(l.seq, proto::nak::order, "Q expected");
     if (num(l.fields[0]) != next_idx_) return nak(l.seq, proto::nak::order, "expected point " + std::to_string(next_idx_));
     const auto& env = server_->opts_.envelope;
@@ -410,7 +418,8 @@ struct RobotSim::Impl::Session : std::enable_shared_from_this<Session> {
 
   void on_q(const proto::Line& l, const std::string& text) {
     if (st_ == St::discarding) return;
-    if (st_ != St::receiving || !pending_p_) return nak(l.seq, proto::nak::order, "Q without its P line");
+    if (st_ != St::receiving) return nak(l.seq, proto::nak::state, "no upload in progress (send TRAJ)");
+    if (!pending_p_) return nak(l.seq, proto::nak::order, "Q without its P line");
     auto pt = proto::point_from_lines(*pending_p_, l);
     if (!pt) return nak(l.seq, proto::nak::order, pt.error().message);
     const double norm = pt->T_base_tool.orientation.coeffs().norm();
