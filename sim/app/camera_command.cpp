@@ -1,7 +1,9 @@
-// fettle-sim camera --address 127.0.0.1 [--part part.toml] [--seed N] [--slide-mm X]:
+// fettle-sim camera --address 127.0.0.1 [--cell cell.toml] [--part part.toml] [--seed N] [--slide-mm X]:
 // the simulated GigE Vision 3D camera (Aravis' fake GigE Vision camera with Fettle's GenICam
 // description), serving range images of the casting (--part, the simulator's scanner) or of
-// a synthetic plane and sphere (no --part) for the current slide position.
+// a synthetic plane and sphere (no --part) for the current slide position. With --cell the
+// camera sits where that cell's calibration file says (as in `fettle-sim cell`), so a cell
+// assembled from the separate simulators sees the part where fettled expects it.
 //
 // While it runs, lines on stdin change it: `slide MM`, `drop N` (the next N frames are never
 // delivered), `loss N RATIO` (the next N frames lose packets), `stall MS`, `revoke` (control
@@ -15,6 +17,7 @@
 #include <filesystem>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -25,6 +28,7 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/camera.hpp"
+#include "fettle/sim/sim.hpp"
 
 namespace {
 
@@ -32,7 +36,8 @@ std::atomic<bool> g_stop{false};
 extern "C" void on_camera_signal(int /*sig*/) { g_stop = true; }
 
 struct Args {
-  std::string address = "127.0.0.1";
+  std::string address;  ///< empty: the cell's [camera] address, else 127.0.0.1
+  std::filesystem::path cell;
   std::filesystem::path part;
   std::uint64_t seed = 1;
   double slide_mm = 0.0;
@@ -96,16 +101,28 @@ int run_camera(const Args& a) {
   auto log = fettle::log::get("sim.camera");
   const auto model = model_for(a.resolution);
   fettle::sim::RangeImageSource source;
+  std::optional<fettle::config::CellConfig> cell;
+  if (!a.cell.empty()) cell = fettle::config::load_cell(a.cell);
+  std::string address = a.address;
+  if (address.empty()) address = cell && !cell->camera.address.empty() ? cell->camera.address : "127.0.0.1";
   if (!a.part.empty()) {
     const auto recipe = fettle::config::load_part(a.part);
     log->info("building casting {} of {} for the simulated camera", a.seed, a.part.string());
-    source = fettle::sim::scanner_range_source(recipe, a.seed, model, !a.ideal);
+    source = fettle::sim::scanner_range_source(recipe, a.seed, model, !a.ideal, cell ? &*cell : nullptr);
+    if (cell) {
+      fettle::sim::ScannerConfig placed;
+      placed.place_in_cell(*cell);
+      const auto p = placed.T_base_camera(0.0).translation();
+      log->info("camera placed as {} says: at slide 0 mm it is at base ({:.1f}, {:.1f}, {:.1f}) mm", a.cell.string(),
+                p.x(), p.y(), p.z());
+    }
   } else {
+    if (cell) log->warn("--cell places the camera over a casting; without --part the synthetic scene is served");
     log->info("no --part given: serving the synthetic plane-and-sphere scene");
     source = fettle::sim::synthetic_range_source(model, fettle::sim::SyntheticScene{});
   }
   fettle::sim::SimulatedCameraOptions o;
-  o.address = a.address;
+  o.address = address;
   o.serial = a.serial;
   o.seed = a.seed;
   o.packet_loss = a.packet_loss;
@@ -114,7 +131,7 @@ int run_camera(const Args& a) {
   if (a.slide_mm != 0.0) camera.set_slide_position_mm(a.slide_mm);
   std::signal(SIGINT, on_camera_signal);
   std::signal(SIGTERM, on_camera_signal);
-  std::cout << "ready: GigE Vision camera " << a.serial << " on " << a.address << " (UDP 3956)" << std::endl;
+  std::cout << "ready: GigE Vision camera " << a.serial << " on " << address << " (UDP 3956)" << std::endl;
   const auto t0 = std::chrono::steady_clock::now();
   std::string buffer;
   bool stdin_open = true;
@@ -149,7 +166,13 @@ int run_camera(const Args& a) {
 FETTLE_COMMAND("camera", [](CLI::App& app, const fettle::cli::Common&) {
   auto a = std::make_shared<Args>();
   auto* cmd = app.add_subcommand("camera", "Simulated GigE Vision 3D camera (Scan3d, Coord3D_C16) on UDP 3956");
-  cmd->add_option("--address", a->address, "Listening IPv4 address (one camera per address)")->capture_default_str();
+  cmd->add_option("--address", a->address,
+                  "Listening IPv4 address (one camera per address; default: the --cell's [camera] address, else "
+                  "127.0.0.1)");
+  cmd->add_option("--cell", a->cell,
+                  "Cell file: the camera sits where its calibration puts it, as fettled expects (default: the "
+                  "simulator's own pose, docs/simulator.md)")
+      ->check(CLI::ExistingFile);
   cmd->add_option("--part", a->part, "Part recipe of the casting in the fixture")->check(CLI::ExistingFile);
   cmd->add_option("--seed", a->seed, "Seed (casting variation, packet loss)")->capture_default_str();
   cmd->add_option("--slide-mm", a->slide_mm, "Initial slide position, mm")->capture_default_str();

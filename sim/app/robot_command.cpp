@@ -12,6 +12,7 @@
 #include <boost/asio/signal_set.hpp>
 
 #include "fettle/cli/cli.hpp"
+#include "fettle/config/load.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/robot.hpp"
@@ -24,6 +25,10 @@ struct Args {
   std::string nak;    // VERB:CODE
   std::string fault;  // POINT[:CODE]
   std::vector<double> envelope_min, envelope_max;
+  std::filesystem::path cell;
+  const CLI::Option* listen_given = nullptr;
+  const CLI::Option* cell_id_given = nullptr;
+  const CLI::Option* max_speed_given = nullptr;
 };
 
 std::pair<std::string, int> split_listen(const std::string& s) {
@@ -45,6 +50,16 @@ std::pair<std::string, int> split_listen(const std::string& s) {
 
 int run_robot(Args& a) {
   auto& o = a.options;
+  if (!a.cell.empty()) {
+    // Where fettled looks for the robot and what its [safety] allows; options given win.
+    const auto cell = fettle::config::load_cell(a.cell);
+    if (a.listen_given->count() == 0) a.listen = cell.robot.address + ":" + std::to_string(cell.robot.port);
+    if (a.cell_id_given->count() == 0) o.expected_cell_id = cell.robot.cell_id;
+    if (a.max_speed_given->count() == 0) o.envelope.max_speed_mm_s = cell.safety.max_speed_mm_s;
+    const auto& s = cell.safety;
+    if (a.envelope_min.empty()) a.envelope_min.assign(s.workspace_min_mm.begin(), s.workspace_min_mm.end());
+    if (a.envelope_max.empty()) a.envelope_max.assign(s.workspace_max_mm.begin(), s.workspace_max_mm.end());
+  }
   std::tie(o.address, o.port) = split_listen(a.listen);
   if (!a.nak.empty()) {
     const auto colon = a.nak.find(':');
@@ -93,17 +108,23 @@ int run_robot(Args& a) {
 FETTLE_COMMAND("robot", [](CLI::App& app, const fettle::cli::Common&) {
   auto a = std::make_shared<Args>();
   auto* cmd = app.add_subcommand("robot", "Simulated robot controller speaking the line protocol (docs/robot-protocol.md)");
-  cmd->add_option("--listen", a->listen, "ADDRESS:PORT to listen on; port 0 picks a free port (printed on stdout)")
-      ->capture_default_str();
+  a->listen_given =
+      cmd->add_option("--listen", a->listen, "ADDRESS:PORT to listen on; port 0 picks a free port (printed on stdout)")
+          ->capture_default_str();
+  cmd->add_option("--cell", a->cell,
+                  "Cell file: listen on its [robot] address:port, accept its cell_id, limit to its [safety] workspace "
+                  "and max_speed_mm_s (options given explicitly win)")
+      ->check(CLI::ExistingFile);
   cmd->add_option("--robot-id", a->options.robot_id, "Robot id sent in the HELLO ACK")->capture_default_str();
-  cmd->add_option("--cell-id", a->options.expected_cell_id, "Cell id to accept in HELLO (default: any)");
+  a->cell_id_given = cmd->add_option("--cell-id", a->options.expected_cell_id, "Cell id to accept in HELLO (default: any)");
   cmd->add_option("--speedup", a->options.speedup, "Execution time scale: 1 real time, 100 100x faster, 0 instant")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1e6));
   cmd->add_option("--envelope-min", a->envelope_min, "Reachable box, lower corner X Y Z (mm)")->expected(3);
   cmd->add_option("--envelope-max", a->envelope_max, "Reachable box, upper corner X Y Z (mm)")->expected(3);
-  cmd->add_option("--max-speed", a->options.envelope.max_speed_mm_s, "Speed limit (mm/s); faster points are NAKed")
-      ->capture_default_str();
+  a->max_speed_given =
+      cmd->add_option("--max-speed", a->options.envelope.max_speed_mm_s, "Speed limit (mm/s); faster points are NAKed")
+          ->capture_default_str();
   cmd->add_option("--nak", a->nak, "Fault: NAK the first line with VERB with CODE, e.g. END:CRC, TRAJ:BUSY");
   cmd->add_option("--disconnect-at-chunk", a->options.faults.disconnect_at_chunk,
                   "Fault: close the connection when upload chunk K begins (once)");

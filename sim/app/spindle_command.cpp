@@ -20,6 +20,7 @@
 #include <boost/asio/streambuf.hpp>
 
 #include "fettle/cli/cli.hpp"
+#include "fettle/config/load.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/drivers/canopen_transport.hpp"
 #include "fettle/sim/spindle.hpp"
@@ -34,6 +35,10 @@ struct Args {
   double ramp_rpm_s = 20000.0;
   double rated_current_a = 8.0;
   double run_for_s = 0.0;
+  std::filesystem::path cell;
+  const CLI::Option* listen_given = nullptr;
+  const CLI::Option* bus_given = nullptr;
+  const CLI::Option* node_id_given = nullptr;
 };
 
 std::pair<std::string, int> split_address(const std::string& s) {
@@ -86,7 +91,15 @@ std::string apply_command(fettle::sim::SimulatedSpindleDrive& drive, const std::
          "' (fault overcurrent|overtemperature|heartbeat_loss, removal MM3_S, heartbeat on|off, status)";
 }
 
-int run_spindle(const Args& a) {
+int run_spindle(Args a) {
+  if (!a.cell.empty()) {
+    // The drive fettled expects: [spindle] node_id, on its socketcand address:port and bus; options given win.
+    const auto cell = fettle::config::load_cell(a.cell);
+    const auto& s = cell.spindle;
+    if (a.listen_given->count() == 0) a.listen = s.address + ":" + std::to_string(s.port);
+    if (a.bus_given->count() == 0) a.bus = s.interface;
+    if (a.node_id_given->count() == 0) a.node_id = s.node_id;
+  }
   boost::asio::io_context io;
   fettle::sim::SpindleSimOptions o;
   o.node_id = static_cast<std::uint8_t>(a.node_id);
@@ -148,11 +161,18 @@ int run_spindle(const Args& a) {
 FETTLE_COMMAND("spindle", [](CLI::App& app, const fettle::cli::Common&) {
   auto args = std::make_shared<Args>();
   auto* cmd = app.add_subcommand("spindle", "Simulated CANopen CiA 402 grinding spindle drive (socketcand or SocketCAN)");
-  cmd->add_option("--listen", args->listen, "Serve the drive's CAN bus with the socketcand protocol on ADDRESS:PORT (0: any free port)")
-      ->capture_default_str();
+  args->listen_given =
+      cmd->add_option("--listen", args->listen,
+                      "Serve the drive's CAN bus with the socketcand protocol on ADDRESS:PORT (0: any free port)")
+          ->capture_default_str();
+  cmd->add_option("--cell", args->cell,
+                  "Cell file: the drive [spindle] describes (node_id; socketcand address:port and bus interface); "
+                  "options given explicitly win")
+      ->check(CLI::ExistingFile);
   cmd->add_option("--can", args->can, "Use this SocketCAN interface (e.g. vcan0) instead of --listen");
-  cmd->add_option("--bus", args->bus, "Bus name clients open over socketcand")->capture_default_str();
-  cmd->add_option("--node-id", args->node_id, "CANopen node id")->check(CLI::Range(1, 127))->capture_default_str();
+  args->bus_given = cmd->add_option("--bus", args->bus, "Bus name clients open over socketcand")->capture_default_str();
+  args->node_id_given =
+      cmd->add_option("--node-id", args->node_id, "CANopen node id")->check(CLI::Range(1, 127))->capture_default_str();
   cmd->add_option("--ramp-rpm-s", args->ramp_rpm_s, "Acceleration/deceleration in rpm/s")
       ->check(CLI::Range(1.0, 1e6))
       ->capture_default_str();

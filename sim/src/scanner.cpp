@@ -7,6 +7,7 @@
 #include <thread>
 
 #include "casting_model.hpp"
+#include "fettle/config/calibration.hpp"
 
 namespace fettle::sim {
 
@@ -60,6 +61,19 @@ Transform ScannerConfig::T_base_slide(double s) const {
 }
 
 Transform ScannerConfig::T_base_camera(double s) const { return T_base_slide(s) * T_slide_camera; }
+
+void ScannerConfig::place_in_cell(const config::CellConfig& cell) {
+  photo_positions_mm = cell.slide.photo_positions_mm;
+  if (cell.calibration.file.empty()) return;
+  const auto cal = config::load_calibration(cell.calibration.file);
+  if (!cal.T_base_camera) return;
+  // The calibration holds the camera pose with the slide at 0 mm; the slide moves along base x
+  // (as fettled's T_base_camera_at does).
+  slide_origin_mm = cal.T_base_camera->translation();
+  slide_axis = Vec3(1.0, 0.0, 0.0);
+  T_slide_camera = Transform::Identity();
+  T_slide_camera.linear() = cal.T_base_camera->linear();
+}
 
 // ---------------------------------------------------------------------------------------------
 // Ray casting

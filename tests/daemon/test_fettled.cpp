@@ -572,6 +572,10 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
   EXPECT_TRUE(WIFEXITED(*status) && WEXITSTATUS(*status) == 0) << "wait status " << *status << "\n" << tail_log();
   // At once: the drive's own heartbeat-loss stop comes only a heartbeat timeout (1 s) after fettled's last one.
   EXPECT_LT(std::abs(cell_->spindle_rpm()), 1.0) << "fettled exited with the spindle turning";
+  // Released before the exit: two heartbeat timeouts later the drive has not faulted.
+  std::this_thread::sleep_for(2s);
+  EXPECT_NE(cell_->spindle_state(), fettle::canopen::DriveState::fault)
+      << "a clean stop left the drive faulted (heartbeat lost)\n" << tail_log();
   const auto robot = cell_->robot_stats();
   EXPECT_EQ(robot.trajectories_halted, halted_before + 1);
   EXPECT_EQ(robot.last_halt_reason, "STOP") << "the robot must be stopped by fettled, not by the lost connection";

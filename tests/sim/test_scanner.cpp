@@ -7,6 +7,7 @@
 #include <sstream>
 #include <unistd.h>
 
+#include "fettle/config/calibration.hpp"
 #include "fettle/core/ply.hpp"
 #include "sim_test_util.hpp"
 
@@ -321,6 +322,28 @@ TEST_F(SimScan, CaptureAllTakesOneViewPerSlidePosition) {
   ASSERT_EQ(caps.size(), 2u);
   EXPECT_NEAR((caps[1].truth.T_base_camera.translation() - caps[0].truth.T_base_camera.translation()).norm(), 120.0, 1e-9);
   EXPECT_NEAR(caps[0].truth.T_base_camera.translation().z(), 600.0, 1e-9);
+}
+
+// A simulator placed in a cell puts its camera where that cell's calibration file says (the
+// shipped simulator cell: base (0, 0, 600) mm looking down at slide 0), so fettle-sim camera
+// --cell and fettle-sim cell agree with what fettled computes from the same file.
+TEST(SimScanner, PlacedInACellTheCameraIsWhereTheCellsCalibrationSays) {
+  const auto cell = fettle::config::load_cell(FETTLE_SOURCE_DIR "/config/cell.sim.toml");
+  const auto calibration = fettle::config::load_calibration(cell.calibration.file);
+  ASSERT_TRUE(calibration.T_base_camera.has_value());
+  ScannerConfig cfg;
+  const auto before = cfg.T_base_camera(0.0);
+  cfg.place_in_cell(cell);
+  EXPECT_EQ(cfg.photo_positions_mm, cell.slide.photo_positions_mm);
+  EXPECT_TRUE(cfg.T_base_camera(0.0).isApprox(*calibration.T_base_camera, 1e-12))
+      << cfg.T_base_camera(0.0).matrix() << "\nvs\n" << calibration.T_base_camera->matrix();
+  EXPECT_FALSE(before.isApprox(cfg.T_base_camera(0.0), 1e-6)) << "the default pose is not the cell's: the test needs them apart";
+  // The slide moves the camera along base x by the photo position.
+  const fettle::Transform at_0 = cfg.T_base_camera(0.0);
+  const fettle::Transform at_120 = cfg.T_base_camera(120.0);
+  EXPECT_NEAR(at_120(0, 3) - at_0(0, 3), 120.0, 1e-12);
+  EXPECT_NEAR(at_120(1, 3) - at_0(1, 3), 0.0, 1e-12);
+  EXPECT_NEAR(at_120(2, 3) - at_0(2, 3), 0.0, 1e-12);
 }
 
 }  // namespace

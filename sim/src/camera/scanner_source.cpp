@@ -10,8 +10,9 @@
 namespace fettle::sim {
 
 RangeImageSource scanner_range_source(const config::PartRecipe& recipe, std::uint64_t seed,
-                                      const RangeImageModel& requested, bool noise) {
+                                      const RangeImageModel& requested, bool noise, const config::CellConfig* cell) {
   ScannerConfig config;
+  if (cell != nullptr) config.place_in_cell(*cell);
   config.intrinsics = config.intrinsics.scaled(static_cast<int>(requested.width), static_cast<int>(requested.height));
   // A 3D camera delivers rectified range maps (SFNC RectifiedC): no lens distortion left.
   config.intrinsics.k1 = config.intrinsics.k2 = config.intrinsics.p1 = config.intrinsics.p2 = config.intrinsics.k3 = 0.0;

@@ -96,18 +96,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     c.intrinsics.k1 = c.intrinsics.k2 = c.intrinsics.p1 = c.intrinsics.p2 = c.intrinsics.k3 = 0.0;  // rectified range maps
     c.intrinsics.fy = c.intrinsics.fx;
     c.noise.enabled = options.noise;
-    c.photo_positions_mm = options.cell.slide.photo_positions_mm;
-    if (!options.cell.calibration.file.empty()) {
-      // The camera is where the cell's calibration says it is at slide position 0; the slide moves it along base x.
-      const auto cal = config::load_calibration(options.cell.calibration.file);
-      if (cal.T_base_camera) {
-        c.slide_origin_mm = cal.T_base_camera->translation();
-        c.slide_axis = Vec3(1.0, 0.0, 0.0);
-        Transform R = Transform::Identity();
-        R.linear() = cal.T_base_camera->linear();
-        c.T_slide_camera = R;
-      }
-    }
+    c.place_in_cell(options.cell);  // where the cell's calibration says the camera is
     return c;
   }
 
@@ -162,6 +151,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     po.port = options.plc_port >= 0 ? options.plc_port : cell.plc.port;
     po.register_base = cell.plc.register_base;
     po.photo_positions_mm = cell.slide.photo_positions_mm;
+    po.home_mm = cell.slide.home_mm;
     po.slide_speed_mm_s = options.slide_speed_mm_s;
     plc = std::make_unique<PlcSimulator>(po);
     auto weak = weak_from_this();
@@ -576,6 +566,9 @@ std::vector<double> CellSim::material_mm3() const {
 }
 double CellSim::spindle_rpm() const {
   return impl_->on_io<double>([this] { return impl_->drive->velocity_rpm(); });
+}
+canopen::DriveState CellSim::spindle_state() const {
+  return impl_->on_io<canopen::DriveState>([this] { return impl_->drive->state(); });
 }
 RobotSimStats CellSim::robot_stats() const {
   return impl_->on_io<RobotSimStats>([this] { return impl_->robot->stats(); });

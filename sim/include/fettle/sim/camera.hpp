@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "fettle/config/cell.hpp"
 #include "fettle/config/part.hpp"
 
 namespace fettle::sim {
@@ -56,9 +57,11 @@ double synthetic_depth_mm(const RangeImageModel& model, const SyntheticScene& sc
 /// The simulator's scanner (fettle::sim::Scanner, sim.hpp) looking at casting `seed` of `recipe`
 /// on the fixture: range images at `model`'s size (rectified: the scanner's lens distortion is
 /// set to zero, as a 3D camera outputs rectified range maps), with the scanner's noise model
-/// unless `noise` is false.
+/// unless `noise` is false. With `cell`, the camera sits where that cell's calibration puts it
+/// (ScannerConfig::place_in_cell), as in `fettle-sim cell`; without, at the scanner's default.
 RangeImageSource scanner_range_source(const config::PartRecipe& recipe, std::uint64_t seed,
-                                      const RangeImageModel& model = {}, bool noise = true);
+                                      const RangeImageModel& model = {}, bool noise = true,
+                                      const config::CellConfig* cell = nullptr);
 
 struct SimulatedCameraOptions {
   std::string address = "127.0.0.1";  ///< listening IPv4 (loopback in tests)

@@ -18,6 +18,7 @@
 
 #include "fettle/config/cell.hpp"
 #include "fettle/core/result.hpp"
+#include "fettle/drivers/canopen.hpp"
 #include "fettle/sim/plc.hpp"
 #include "fettle/sim/robot.hpp"
 
@@ -93,6 +94,8 @@ class CellSim {
   [[nodiscard]] std::vector<double> material_mm3() const;
   /// The simulated spindle drive's actual speed.
   [[nodiscard]] double spindle_rpm() const;
+  /// The simulated drive's CiA 402 state (fault after its master's heartbeat stopped, say).
+  [[nodiscard]] canopen::DriveState spindle_state() const;
   /// A copy of what the simulated robot has seen (runs received, completed, halted and why).
   [[nodiscard]] RobotSimStats robot_stats() const;
   void on_event(CellEventHandler handler);

@@ -17,6 +17,7 @@
 
 #include <Eigen/Core>
 
+#include "fettle/config/cell.hpp"
 #include "fettle/config/part.hpp"
 #include "fettle/core/cloud.hpp"
 #include "fettle/core/geometry.hpp"
@@ -175,6 +176,10 @@ struct ScannerConfig {
   [[nodiscard]] Transform T_base_slide(double slide_position_mm) const;
   [[nodiscard]] Transform T_base_camera(double slide_position_mm) const;
   static Transform default_T_slide_camera();
+  /// Places the scanner as `cell` says: its photo positions, and the camera where the cell's
+  /// calibration file puts it at slide position 0 (T_base_camera), moving along base x. A cell
+  /// without a calibration file leaves the pose as it is. Throws config errors as load_cell does.
+  void place_in_cell(const config::CellConfig& cell);
 };
 
 /// GenICam Coord3D_C16-style range image: Z (camera frame, mm) = value * scale + offset;
