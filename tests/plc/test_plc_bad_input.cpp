@@ -8,6 +8,7 @@
 #include <atomic>
 #include <chrono>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <cstdint>
 #include <string>
@@ -62,9 +63,13 @@ std::string frame(std::uint16_t transaction, std::uint8_t unit, const std::strin
   return be16(transaction) + be16(0) + be16(static_cast<unsigned>(pdu.size() + 1)) + static_cast<char>(unit) + pdu;
 }
 
+/// How a peer puts a reply on the wire (whole, byte by byte, half and then nothing, ...).
+using Sender = std::function<bool(int fd, const std::string& bytes)>;
+const Sender kWhole = [](int fd, const std::string& bytes) { return RawTcpPeer::send(fd, bytes); };
+
 /// A Modbus server in a few lines: answers reads with `value_of(offset)`, acknowledges writes.
-RawTcpPeer::Session modbus_server(std::function<std::uint16_t(int)> value_of) {
-  return [value_of](RawTcpPeer& peer, int fd) {
+RawTcpPeer::Session modbus_server(std::function<std::uint16_t(int)> value_of, Sender send = kWhole) {
+  return [value_of, send](RawTcpPeer& peer, int fd) {
     std::string buf;
     while (auto r = read_request(peer, fd, buf)) {
       std::string pdu;
@@ -76,7 +81,20 @@ RawTcpPeer::Session modbus_server(std::function<std::uint16_t(int)> value_of) {
       } else {
         pdu = std::string(1, static_cast<char>(r->function | 0x80)) + '\x01';
       }
-      if (!RawTcpPeer::send(fd, frame(r->transaction, r->unit, pdu))) return;
+      if (!send(fd, frame(r->transaction, r->unit, pdu))) return;
+    }
+  };
+}
+
+/// A valid, live PLC block (the heartbeat counts up on every read).
+std::function<std::uint16_t(int)> good_plc() {
+  auto heartbeat = std::make_shared<std::atomic<std::uint16_t>>(0);
+  return [heartbeat](int address) -> std::uint16_t {
+    switch (address - plc::reg::plc_block_start) {
+      case plc::reg::interface_version: return plc::kInterfaceVersion;
+      case plc::reg::plc_heartbeat: return (*heartbeat)++;
+      case plc::reg::slide_state: return static_cast<std::uint16_t>(plc::SlideStatus::at_home);
+      default: return 0;
     }
   };
 }
@@ -175,6 +193,54 @@ TEST_F(PlcBadPeer, ModbusExceptionIsALinkDownNamingIt) {
   EXPECT_TRUE(events.all<plc::LinkUp>().empty());
 }
 
+// A reply that stops halfway (a PLC that hangs while sending) is a timeout, not a hang.
+TEST_F(PlcBadPeer, AReplyThatStopsHalfwayIsATimeout) {
+  start([](RawTcpPeer& p, int fd) {
+    std::string buf;
+    if (auto r = read_request(p, fd, buf))
+      RawTcpPeer::send(fd, frame(r->transaction, r->unit, std::string("\x03\x14", 2) + std::string(20, '\0')).substr(0, 9));
+    p.hold(fd, std::chrono::seconds(2));
+  });
+  const auto down = events.wait_for<plc::LinkDown>(kWait);
+  ASSERT_TRUE(down) << events.dump();
+  EXPECT_EQ(down->reason, plc::LinkDownReason::timeout) << down->detail;
+  EXPECT_NE(down->detail.find("no reply within"), std::string::npos) << down->detail;
+  EXPECT_TRUE(events.all<plc::LinkUp>().empty()) << events.dump();
+}
+
+// A slow PLC that answers one byte at a time, each well within the response timeout: that is
+// Modbus TCP (a stream), and the link comes up.
+TEST_F(PlcBadPeer, AReplySentByteByByteComesUp) {
+  start(modbus_server(good_plc(), [](int fd, const std::string& bytes) {
+    for (const char c : bytes) {
+      if (!RawTcpPeer::send(fd, std::string(1, c))) return false;
+      std::this_thread::sleep_for(milliseconds(1));
+    }
+    return true;
+  }));
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+  EXPECT_TRUE(events.all<plc::LinkDown>().empty()) << events.dump();
+}
+
+// After a hostile peer, the link comes up by itself once a good PLC answers on the same port.
+TEST_F(PlcBadPeer, AfterGarbageTheLinkRecoversWhenAGoodPlcAnswers) {
+  auto good = modbus_server(good_plc());
+  auto connections = std::make_shared<std::atomic<int>>(0);
+  start([good, connections](RawTcpPeer& p, int fd) {
+    if ((*connections)++ < 2) {  // the first two connections: garbage
+      std::string buf;
+      if (read_request(p, fd, buf)) RawTcpPeer::send(fd, std::string(40, '\xff'));
+      return;
+    }
+    good(p, fd);
+  });
+  const auto down = events.wait_for<plc::LinkDown>(kWait);
+  ASSERT_TRUE(down) << events.dump();
+  EXPECT_FALSE(down->detail.empty());
+  ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
+  EXPECT_GE(connections->load(), 3);
+}
+
 TEST_F(PlcBadPeer, EveryRegisterAtItsMaximumIsOutOfRangeNeverUp) {
   start(modbus_server([](int) { return std::uint16_t{0xFFFF}; }));
   const auto bad = events.wait_for<plc::ValueOutOfRange>(kWait);
@@ -189,14 +255,6 @@ TEST_F(PlcBadPeer, EveryRegisterAtItsMaximumIsOutOfRangeNeverUp) {
 
 TEST_F(PlcBadPeer, AValidBlockFromTheRawServerComesUp) {
   // The control case: the same hand-made server with a valid, live block is accepted.
-  std::atomic<std::uint16_t> heartbeat{0};
-  start(modbus_server([&heartbeat](int address) -> std::uint16_t {
-    switch (address - plc::reg::plc_block_start) {
-      case plc::reg::interface_version: return plc::kInterfaceVersion;
-      case plc::reg::plc_heartbeat: return heartbeat++;
-      case plc::reg::slide_state: return static_cast<std::uint16_t>(plc::SlideStatus::at_home);
-      default: return 0;
-    }
-  }));
+  start(modbus_server(good_plc()));
   ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
 }

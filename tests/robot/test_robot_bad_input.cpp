@@ -7,10 +7,13 @@
 #include <algorithm>
 #include <chrono>
 #include <functional>
+#include <memory>
+#include <thread>
 #include <string>
 #include <vector>
 
 #include <boost/asio/io_context.hpp>
+#include <boost/asio/steady_timer.hpp>
 
 #include "../support/raw_tcp_peer.hpp"
 #include "fettle/drivers/robot_link.hpp"
@@ -88,6 +91,49 @@ class RobotBadPeer : public ::testing::Test {
     };
   }
 
+  /// A well-behaved robot, by hand: ACKs HELLO, PONGs every PING; `send` puts each line on the wire.
+  static RawTcpPeer::Session good_robot(std::function<bool(int, const std::string&)> send) {
+    return [send](RawTcpPeer& peer, int fd) {
+      std::string buf;
+      int seq = 0;
+      while (!peer.stop_requested()) {
+        const auto got = peer.read_some(fd, 20ms);
+        buf += got;
+        for (auto nl = buf.find('\n'); nl != std::string::npos; nl = buf.find('\n')) {
+          const std::string line = buf.substr(0, nl);
+          buf.erase(0, nl + 1);
+          const auto sp = line.find(' ');
+          const std::string ref = line.substr(0, sp);
+          std::string reply;
+          if (line.find(" HELLO ") != std::string::npos) reply = "ACK " + ref + " 1 hand-made";
+          if (line.find(" PING") != std::string::npos) reply = "PONG " + ref;
+          if (!reply.empty() && !send(fd, std::to_string(++seq) + " " + reply + "\n")) return;
+        }
+      }
+    };
+  }
+
+  /// Drives the link until `pred`, with a probe timer every 10 ms on the link's own io_context:
+  /// returns the largest lateness of the probe (the event loop's worst stall).
+  std::chrono::milliseconds worst_stall_until(const std::function<bool()>& pred) {
+    boost::asio::steady_timer probe(io_);
+    std::chrono::steady_clock::duration worst{};
+    std::function<void()> arm = [&] {
+      const auto due = std::chrono::steady_clock::now() + 10ms;
+      probe.expires_at(due);
+      probe.async_wait([&, due](const boost::system::error_code& ec) {
+        if (ec) return;
+        worst = std::max(worst, std::chrono::steady_clock::now() - due);
+        arm();
+      });
+    };
+    arm();
+    EXPECT_TRUE(run_until(pred)) << error_codes();
+    probe.cancel();
+    run_until([] { return false; }, 5ms);
+    return std::chrono::duration_cast<std::chrono::milliseconds>(worst);
+  }
+
   boost::asio::io_context io_;
   std::unique_ptr<RawTcpPeer> peer_;
   std::unique_ptr<RobotLink> link_;
@@ -149,6 +195,49 @@ TEST_F(RobotBadPeer, HelloAckWithoutVersionIsAProtocolError) {
   start(after_hello("1 ACK 1\n"));
   ASSERT_TRUE(run_until([&] { return saw("robot.protocol"); })) << error_codes();
   EXPECT_FALSE(was_ready());
+}
+
+// A reply that stops mid-line (a controller that hangs while sending) is a reply timeout, and
+// the event loop is never blocked meanwhile.
+TEST_F(RobotBadPeer, ALineThatStopsHalfwayIsAReplyTimeoutNeverAStall) {
+  start(after_hello("1 ACK 1 1 rob"));
+  const auto stall = worst_stall_until([&] { return saw("robot.reply_timeout"); });
+  EXPECT_FALSE(was_ready());
+  EXPECT_LT(stall, 100ms) << "the link's event loop stalled";
+  EXPECT_NE(message_of("robot.reply_timeout").find("ms"), std::string::npos) << message_of("robot.reply_timeout");
+}
+
+// A controller that writes its replies one byte at a time (a stream, as TCP is) is read line by
+// line, and the event loop keeps running between the bytes.
+TEST_F(RobotBadPeer, ARobotThatAnswersByteByByteIsReady) {
+  start(good_robot([](int fd, const std::string& line) {
+    for (const char c : line) {
+      if (!RawTcpPeer::send(fd, std::string(1, c))) return false;
+      std::this_thread::sleep_for(2ms);
+    }
+    return true;
+  }));
+  const auto stall = worst_stall_until([&] { return was_ready(); });
+  EXPECT_LT(stall, 100ms) << "the link's event loop stalled";
+  // and it stays up: its PINGs are answered, byte by byte
+  run_until([] { return false; }, 300ms);
+  EXPECT_EQ(link_->state(), RobotState::ready) << error_codes();
+}
+
+// After garbage the link reconnects by itself and is ready once the controller answers well.
+TEST_F(RobotBadPeer, AfterGarbageTheLinkRecoversWhenTheRobotAnswersWell) {
+  auto good = good_robot([](int fd, const std::string& line) { return RawTcpPeer::send(fd, line); });
+  auto connections = std::make_shared<int>(0);
+  start([good, connections](RawTcpPeer& peer, int fd) {
+    if ((*connections)++ == 0) {
+      (void)peer.read_some(fd);
+      RawTcpPeer::send(fd, "\x01\x02 garbage \xff\xfe\n");
+      return;
+    }
+    good(peer, fd);
+  });
+  ASSERT_TRUE(run_until([&] { return saw("robot.protocol") && link_->state() == RobotState::ready; })) << error_codes();
+  EXPECT_NE(message_of("robot.protocol").find("byte 0x01 at column 1"), std::string::npos) << message_of("robot.protocol");
 }
 
 TEST_F(RobotBadPeer, RepliesNobodyAskedForAreIgnoredThenALostLineIsCaught) {
