@@ -525,6 +525,18 @@ TEST_F(Fettled, B_FaultsOnTheWireEndInTheirStateAndTheCellRecovers) {
   EXPECT_EQ(results.size(), 7U) << journal;
   const auto report = nlohmann::json::parse(read_text(dir_ / "state/cycles" / results.rbegin()->first / "report.json"));
   EXPECT_TRUE(report.contains("steps"));
+
+  // What the PLC saw on the wire: one result per accepted request, the faulted ones' FAULT too
+  // (the one of the link drop after the link came back), and every state of the Hold and Abort
+  // paths, the acting ones included, in order.
+  const auto plc_seen = cell_->plc();
+  EXPECT_EQ(static_cast<int>(plc_seen.results.size()), plc_seen.cycles_accepted);
+  EXPECT_EQ(std::count(plc_seen.results.begin(), plc_seen.results.end(), fettle::drivers::plc::CycleResult::fault), 6);
+  std::string states;
+  for (const auto st : plc_seen.states) states += std::string(fettle::packml::name(st)) + " ";
+  for (const std::string run : {"Execute Holding Held ", "Held Unholding Execute ", "Execute Aborting Aborted ",
+                                "Aborted Clearing Stopped Resetting Idle Starting Execute "})
+    EXPECT_NE((" " + states).find(" " + run), std::string::npos) << "the PLC never saw " << run << "in a row: " << states;
 }
 
 /// The journal as id -> last event's result ("" while only started, "INTERRUPTED" when marked).
