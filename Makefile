@@ -119,13 +119,16 @@ bench: build
 # random:50: 50 consecutive seeds from a start above 1000, printed first so the run can be
 # repeated with ACCURACY_SEEDS=A-B); it fails on any gouge deeper than 0.10 mm anywhere on the
 # part. Results in $(BUILD_DIR)/accuracy/.
-# The run's summary.md goes into docs/results.md, pass or fail.
+# The run's summary.md goes into docs/results.md, pass or fail. ERRORS=config/sim/errors-realistic.toml
+# runs it in a world with a real cell's errors (docs/simulator.md, "Error budget"), into its own
+# section.
 ACCURACY_SEEDS ?= random:50
+ERRORS ?=
 accuracy: build
 	rm -f $(BUILD_DIR)/accuracy/summary.md
 	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \
-	  --seeds $(ACCURACY_SEEDS) --out $(BUILD_DIR)/accuracy; status=$$?; \
-	  scripts/update-results accuracy $(BUILD_DIR)/accuracy/summary.md && exit $$status
+	  --seeds $(ACCURACY_SEEDS) $(if $(ERRORS),--errors $(ERRORS)) --out $(BUILD_DIR)/accuracy; status=$$?; \
+	  scripts/update-results $(if $(ERRORS),accuracy-errors,accuracy) $(BUILD_DIR)/accuracy/summary.md && exit $$status
 
 # The cell's verification against gouges made on purpose: the executed path 0.4 mm below the
 # commanded one on castings drawn when it runs (BIAS_SEEDS); every casting the simulator finds

@@ -16,18 +16,21 @@
 #include <ctime>
 #include <map>
 #include <memory>
+#include <optional>
 #include <random>
 #include <set>
 #include <sstream>
 
 #include <nlohmann/json.hpp>
 
+#include "fettle/config/errors.hpp"
 #include "fettle/config/roi.hpp"
 #include "fettle/core/atomic_file.hpp"
 #include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/process/pipeline.hpp"
+#include "fettle/sim/errors.hpp"
 #include "fettle/vision/cloud.hpp"
 #include "fettle/vision/preprocess.hpp"
 #include "sim_common.hpp"
@@ -50,6 +53,8 @@ struct Args {
   fs::path part, out;
   std::string seeds = "1-3";
   std::vector<double> path_bias_mm{0.0, 0.0, 0.0};  ///< the executed path's offset (base frame)
+  fs::path errors;                                   ///< an error budget file ([errors])
+  std::uint64_t cell_seed = 1;                       ///< draws the cell's errors (the same for every casting)
   double golden_spacing_mm = 0.5;
   app::ScannerOptions scanner;
   bool log_level_given = false;  ///< --log-level was given: the logs as asked
@@ -102,6 +107,14 @@ std::vector<fettle::process::View> to_views(const std::vector<Capture>& captures
   for (const auto& c : captures) views.push_back({c.cloud, c.truth.T_base_camera, c.truth.slide_position_mm});
   return views;
 }
+
+/// One casting's views: the captures with their truth (for the evaluation), and the views as the
+/// cell gets them (for the pipeline: with --errors, decoded with what the cell believes).
+struct Scan {
+  std::vector<Capture> captures;
+  std::vector<fettle::process::View> views;
+  std::vector<double> slide_errors_mm;  ///< per view, the slide's true minus commanded position (--errors)
+};
 
 std::vector<Capture> scan_all(const Scanner& scanner, const Casting& casting, std::size_t view_offset) {
   std::vector<Capture> out;
@@ -196,6 +209,8 @@ struct RunFacts {
   std::size_t gouged = 0, missed = 0;
   double gouge_depth_mm = 0.0;
   bool pass = false;
+  std::string errors_file;  ///< --errors, empty: the simulator's own world
+  std::uint64_t cell_seed = 1;
 };
 
 /// The run as a Markdown section: `make accuracy` puts it into docs/results.md
@@ -209,8 +224,13 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
   if (f.biased)
     std::snprintf(bias, sizeof bias, "%.2f %.2f %.2f", f.path_bias.x(), f.path_bias.y(), f.path_bias.z());
   // A biased run checks the cell's verification (make accuracy-bias); an unbiased one, accuracy.
-  const std::string make = f.biased ? "make accuracy-bias BIAS_SEEDS=" : "make accuracy ACCURACY_SEEDS=";
-  if (f.biased)
+  const std::string make = f.biased                 ? "make accuracy-bias BIAS_SEEDS="
+                           : !f.errors_file.empty() ? "make accuracy ERRORS=" + f.errors_file + " ACCURACY_SEEDS="
+                                                    : "make accuracy ACCURACY_SEEDS=";
+  if (!f.errors_file.empty())
+    m << "## Closed-loop accuracy under an error budget: `make accuracy ERRORS=" << f.errors_file
+      << "` (`fettle-sim trial --errors`, cell seed " << f.cell_seed << ")\n\n";
+  else if (f.biased)
     m << "## The verification catches gouges: `make accuracy-bias` (`fettle-sim trial --path-bias-mm " << bias
       << "`)\n\n";
   else
@@ -268,6 +288,11 @@ int trial(const Args& a) {
   const auto [first, last] = parse_seeds(a.seeds);
   const fettle::Vec3 path_bias(a.path_bias_mm[0], a.path_bias_mm[1], a.path_bias_mm[2]);
   const bool biased = path_bias.norm() > 0.0;
+  std::optional<fettle::config::ErrorBudget> budget;
+  if (!a.errors.empty()) budget = fettle::config::load_error_budget(a.errors);
+  if (budget && biased)
+    throw fettle::UserError("--path-bias-mm and --errors both offset the path: give path_bias_mm in " +
+                            a.errors.string() + " instead");
   const std::string seeds_text = std::to_string(first) + "-" + std::to_string(last);
   const bool drawn = a.seeds.rfind("random:", 0) == 0;
   std::printf("seeds %s%s%s\n", seeds_text.c_str(),
@@ -275,10 +300,39 @@ int trial(const Args& a) {
               biased ? ", the executed path offset by --path-bias-mm" : "");
   std::fflush(stdout);
   const auto recipe = fettle::config::load_part(a.part);
+  // The simulated castings: the recipe's world, with the budget's form deviation when it has one.
+  auto world = recipe;
+  if (budget && budget->form_deviation_mm) world.geometry.variation.form_deviation_mm = *budget->form_deviation_mm;
   fettle::config::CellConfig cell;
   if (!a.scanner.cell.empty()) cell = fettle::config::load_cell(a.scanner.cell);
   CellLimits limits;
-  const Scanner scanner(app::scanner_config(a.scanner, &limits));
+  // The scanner as the cell believes it is, and as it really is (the same without --errors).
+  const auto nominal = app::scanner_config(a.scanner, &limits);
+  std::optional<CellErrors> errors;
+  if (budget) {
+    errors = draw_cell_errors(*budget, a.cell_seed, nominal.intrinsics);
+    std::printf("errors from %s, drawn for cell seed %llu: %s\n", a.errors.string().c_str(),
+                static_cast<unsigned long long>(a.cell_seed), errors->to_json()["drawn"].dump().c_str());
+    std::fflush(stdout);
+  }
+  const Scanner scanner(errors ? true_scanner(nominal, *errors) : nominal);
+  // The scans as the cell gets them: the true world, decoded with what the cell believes.
+  const auto scan = [&](const Casting& c, std::uint64_t seed, std::size_t view_offset) {
+    Scan out;
+    if (!errors) {
+      out.captures = scan_all(scanner, c, view_offset);
+      out.views = to_views(out.captures);
+      return out;
+    }
+    const auto& pos = nominal.photo_positions_mm;
+    for (std::size_t v = 0; v < pos.size(); ++v) {
+      auto cc = capture_as_cell(scanner, nominal, *errors, c, pos[v], seed, view_offset + v);
+      out.views.push_back({cc.capture.cloud, cc.believed_T_base_camera, cc.commanded_slide_mm});
+      out.slide_errors_mm.push_back(cc.capture.truth.slide_position_mm - cc.commanded_slide_mm);
+      out.captures.push_back(std::move(cc.capture));
+    }
+    return out;
+  };
   std::error_code ec;
   fs::create_directories(a.out, ec);
   if (ec) throw fettle::UserError(a.out.string() + ": cannot create the output directory: " + ec.message());
@@ -306,6 +360,7 @@ int trial(const Args& a) {
   std::map<std::string, double> type_gouge;    // the deepest gouge per region type
   double max_gouge = 0.0;
   std::vector<double> plan_ms;
+  std::map<std::string, double> worn_mm;  // --errors: each tool's radius lost to wear so far
   json seeds_json = json::array();
   const std::size_t count = last - first + 1;
   for (std::uint64_t seed = first; seed <= last; ++seed, ++done) {
@@ -315,11 +370,11 @@ int trial(const Args& a) {
     json sj;
     sj["seed"] = seed;
     std::fprintf(stderr, "[%zu/%zu] seed %llu: scan", done + 1, count, static_cast<unsigned long long>(seed));
-    Casting casting = Casting::make(recipe, seed);
+    Casting casting = Casting::make(world, seed);
     Casting body = casting;  // the casting without its material: where the planner should put each region
     body.remove_all_material();
-    const auto captures = scan_all(scanner, casting, 0);
-    auto out = fettle::process::process(loaded, cell, to_views(captures),
+    const auto first_scan = scan(casting, seed, 0);
+    auto out = fettle::process::process(loaded, cell, first_scan.views,
                                        [](std::size_t, std::size_t, const std::string& step) {
                                          if (step != "done") std::fprintf(stderr, ", %s", step.c_str());
                                        });
@@ -347,7 +402,22 @@ int trial(const Args& a) {
     GrindOptions go;
     go.noise_seed = seed;
     go.path_bias_mm = path_bias;
-    auto runs = grind_by_region(casting, out->trajectory, recipe, go, {}, limits);
+    if (errors) {
+      apply_to_grinding(*errors, go);
+      json ej = json::object();
+      ej["slide_errors_mm"] = first_scan.slide_errors_mm;
+      ej["wheel_wear_mm"] = worn_mm;
+      sj["errors"] = ej;
+    }
+    // Worn wheels: each tool's radius is smaller by what it wore on the castings before; the
+    // cell's recipe still says the new size.
+    auto worn = recipe;
+    for (auto& t : worn.tools)
+      if (auto w = worn_mm.find(t.name); w != worn_mm.end()) t.diameter_mm = std::max(0.1, t.diameter_mm - 2.0 * w->second);
+    auto runs = grind_by_region(casting, out->trajectory, worn, go, {}, limits);
+    if (runs && errors && errors->budget.wheel_wear_mm_per_cm3 > 0.0)
+      for (const auto& run : runs->runs)
+        worn_mm[run.tool] += errors->budget.wheel_wear_mm_per_cm3 * run.result.removed_mm3() / 1000.0;
     if (!runs) {
       std::fprintf(stderr, ": FAILED: %s\n", runs.error().message.c_str());
       sj["error"] = runs.error().message;
@@ -367,11 +437,11 @@ int trial(const Args& a) {
     }
 
     std::fprintf(stderr, ", re-scan");
-    const auto rescan = scan_all(scanner, casting, 100);
+    const auto rescan = scan(casting, seed, 100);
     std::fprintf(stderr, ", verify");
-    const auto ver = fettle::process::verify(loaded, cell, to_views(rescan), {out->trajectory});
+    const auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory});
     std::fprintf(stderr, ", evaluate");
-    const auto pts = eval_points(recipe, rescan);
+    const auto pts = eval_points(recipe, rescan.captures);
     const auto golden_distance = [&](const fettle::Vec3& p) { return casting.distance_to_golden_mm(p); };
     if (!reference) reference = casting;
     const auto ref_distance = [&](const fettle::Vec3& p) { return reference->distance_to_surface_mm(p); };
@@ -566,6 +636,10 @@ int trial(const Args& a) {
   summary["seeds"] = {first, last};
   summary["seeds_drawn_at_run_time"] = drawn;
   summary["path_bias_mm"] = {path_bias.x(), path_bias.y(), path_bias.z()};
+  if (errors) {
+    summary["errors"] = json::parse(errors->to_json().dump());
+    summary["errors"]["wheel_wear_mm_at_end"] = worn_mm;
+  }
   summary["gouged_castings"] = gouged_seeds;
   summary["gouges_missed_by_verification"] = missed_gouges;
   summary["failures"] = failures;
@@ -589,7 +663,8 @@ int trial(const Args& a) {
                                                     app::seconds_since(t0) / 60.0, scanner.config().intrinsics.width,
                                                     scanner.config().intrinsics.height, seed_gouges, max_gouge,
                                                     worst_where, plan_ms, verdicts, gouged_seeds, missed_gouges,
-                                                    recipe.verification.gouge_depth_mm, pass},
+                                                    recipe.verification.gouge_depth_mm, pass,
+                                                    a.errors.empty() ? std::string() : a.errors.string(), a.cell_seed},
                                                    t1, type_gouge));
   return pass ? fettle::exit_code::ok : fettle::exit_code::failure;
 }
@@ -615,6 +690,12 @@ FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common& common) {
                   "Executed path offset x y z (mm, base frame) from the commanded one: a test of the cell's verification")
       ->expected(3);
   cmd->add_option("--out", a->out, "Output directory (seed-<n>/evaluation.json, template.ply, roi_<region>.ply)")->required();
+  cmd->add_option("--errors", a->errors,
+                  "Error budget file ([errors]: calibration, slide, intrinsics, path, depth, form, wheel wear; "
+                  "config/sim/errors-realistic.toml); the cell is not told")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--cell-seed", a->cell_seed, "Draws the cell's errors (--errors), the same for every casting")
+      ->capture_default_str();
   app::add_scanner_options(cmd, a->scanner);
   auto g = std::make_shared<std::pair<fs::path, fs::path>>();
   auto spacing = std::make_shared<double>(0.5);

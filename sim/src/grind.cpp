@@ -343,7 +343,7 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
     // z, y, x: gcc's order for Vec3(rng.gaussian(), ...), sequenced so every compiler draws it.
     const double nz = rng.gaussian(), ny = rng.gaussian(), nx = rng.gaussian();
     const Vec3 noise(nx, ny, nz);
-    const Vec3 x_base = p.x + opt.path_noise_mm * noise + opt.path_bias_mm;
+    const Vec3 x_base = p.x + opt.path_noise_mm * noise + opt.path_bias_mm - opt.tcp_length_error_mm * (p.q * Vec3::UnitZ());
     const Vec3 a = (T_part_base.linear() * (p.q * Vec3::UnitZ())).normalized();
     // The TCP is the tool tip (docs/planning.md): a ball's centre is R up the tool axis from it.
     const Vec3 c = T_part_base * x_base + (tool.shape == config::ToolShape::ball ? Vec3(tool.radius * a) : Vec3(Vec3::Zero()));

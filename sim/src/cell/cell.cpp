@@ -26,6 +26,7 @@
 #include "fettle/drivers/canopen_transport.hpp"
 #include "fettle/drivers/robot_protocol.hpp"
 #include "fettle/sim/camera.hpp"
+#include "fettle/sim/errors.hpp"
 #include "fettle/sim/robot.hpp"
 #include "fettle/sim/sim.hpp"
 #include "fettle/sim/spindle.hpp"
@@ -62,6 +63,10 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
   std::optional<Casting> empty_scene;
   std::atomic<std::uint64_t> casting_version{0};
   std::unique_ptr<Scanner> scanner;
+  ScannerConfig nominal;                  ///< the scanner as the cell believes it is (what the camera reports)
+  std::optional<CellErrors> drawn;        ///< --errors: this cell's errors
+  config::PartRecipe world;               ///< the castings' recipe: the cell's, with the budget's form deviation
+  std::map<std::string, double> worn_mm;  ///< --errors: each tool's radius lost to wear (grinder thread)
   std::size_t views_rendered = 0;
 
   // Rendering on slide arrival.
@@ -90,19 +95,23 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
 
   // ---- setup ----
 
-  ScannerConfig scanner_config() const {
+  /// The scanner as it really is; sets `nominal` (and `drawn` with --errors) on the way.
+  ScannerConfig scanner_config() {
     ScannerConfig c;
     c.intrinsics = c.intrinsics.scaled(static_cast<int>(options.camera_width), static_cast<int>(options.camera_height));
     c.intrinsics.k1 = c.intrinsics.k2 = c.intrinsics.p1 = c.intrinsics.p2 = c.intrinsics.k3 = 0.0;  // rectified range maps
     c.intrinsics.fy = c.intrinsics.fx;
     c.noise.enabled = options.noise;
     c.place_in_cell(options.cell);  // where the cell's calibration says the camera is
-    return c;
+    nominal = c;
+    if (!options.errors) return c;
+    drawn = draw_cell_errors(*options.errors, options.cell_seed, c.intrinsics);
+    return true_scanner(c, *drawn);  // where it really is
   }
 
   RangeImageSource range_source() {
     RangeImageModel model;
-    const auto& in = scanner->config().intrinsics;
+    const auto& in = nominal.intrinsics;  // what the camera tells fettled
     model.width = static_cast<std::uint32_t>(in.width);
     model.height = static_cast<std::uint32_t>(in.height);
     model.focal_px = in.fx;
@@ -118,16 +127,22 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       if (!self) return;
       std::lock_guard lock(self->casting_mutex);
       if (!self->casting && !self->empty_scene) {  // nothing loaded yet: a seed-0 scene, without its part
-        self->empty_scene = Casting::make(self->recipe, 0);
+        self->empty_scene = Casting::make(self->world, 0);
         self->empty_scene->take_off_fixture();
       }
       const Casting& scene = self->casting ? *self->casting : *self->empty_scene;
-      const Capture capture = self->scanner->capture(scene, slide_mm, self->views_rendered++);
+      const std::size_t view = self->views_rendered++;
+      const auto& e = self->drawn;
+      const double true_mm = slide_mm + (e ? e->slide_error_mm(scene.seed(), view) : 0.0);
+      const Capture capture = self->scanner->capture(scene, true_mm, view);
       const auto& z = capture.range;
       if (z.width != model.width || z.height != model.height) return;
       for (std::size_t i = 0; i < out.size(); ++i) {
-        const float v = z.data[i];
+        float v = z.data[i];
         if (!std::isfinite(v)) continue;
+        if (e && !e->depth_waves.empty())
+          v += static_cast<float>(e->correlated_depth_mm(static_cast<double>(i % model.width),
+                                                         static_cast<double>(i / model.width)));
         const double raw = std::round((v - model.offset_mm) / model.scale_mm);
         if (raw >= 1.0 && raw <= 65535.0) out[i] = static_cast<std::uint16_t>(raw);
       }
@@ -143,7 +158,12 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       if (r.plc_recipe_id == options.recipe_id) ref = &r;
     recipe = config::load_part(ref->file);
     recipe_id = ref->plc_recipe_id;
+    world = recipe;
+    if (options.errors && options.errors->form_deviation_mm)
+      world.geometry.variation.form_deviation_mm = *options.errors->form_deviation_mm;
     scanner = std::make_unique<Scanner>(scanner_config());
+    if (drawn) event("errors from " + options.errors->source.string() + ", drawn for cell seed " +
+                     std::to_string(options.cell_seed) + ": " + drawn->to_json()["drawn"].dump());
     auto_start = options.auto_start;
 
     PlcSimOptions po;
@@ -293,12 +313,12 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     event(what);
   }
 
-  void load(std::uint64_t seed) { set_casting(Casting::make(recipe, seed), "part loaded: casting " + std::to_string(seed)); }
+  void load(std::uint64_t seed) { set_casting(Casting::make(world, seed), "part loaded: casting " + std::to_string(seed)); }
 
   void load_wrong(std::uint64_t seed) {
     // Upside down would be a wrong part too, but the height-field renderer cannot show a part
     // from below.
-    const config::PartRecipe mirrored = mirrored_in_x(recipe);
+    const config::PartRecipe mirrored = mirrored_in_x(world);
     set_casting(Casting::make(mirrored, seed), "wrong part loaded: casting " + std::to_string(seed) + " mirrored (the other hand)");
   }
 
@@ -373,7 +393,12 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       GrindOptions go;
       go.tool = tool_for_segment(seg.points, T_part_base);
       go.noise_seed = casting->seed() * 1000 + casting_version;
+      if (drawn) {
+        apply_to_grinding(*drawn, go);
+        go.tool.diameter_mm = std::max(0.1, go.tool.diameter_mm - 2.0 * worn_mm[go.tool.name]);
+      }
       auto r = sim::grind(*casting, seg, go, limits);
+      if (r && drawn) worn_mm[go.tool.name] += drawn->budget.wheel_wear_mm_per_cm3 * r->removed_mm3() / 1000.0;
       if (!r) event("grinding segment " + std::to_string(t.points[i].segment) + " refused: " + r.error().message);
       else
         for (const auto& g : r->gouges)

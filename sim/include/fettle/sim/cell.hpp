@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "fettle/config/cell.hpp"
+#include "fettle/config/errors.hpp"
 #include "fettle/core/result.hpp"
 #include "fettle/drivers/canopen.hpp"
 #include "fettle/sim/plc.hpp"
@@ -44,6 +45,10 @@ struct CellSimOptions {
   /// then sees the casting unground.
   bool grind = true;
   double slide_speed_mm_s = 500.0;
+  /// A real cell's errors (docs/simulator.md, "Error budget"): the camera mounted off its
+  /// calibration, the robot's path off the commanded one, ...; fettled is not told.
+  std::optional<config::ErrorBudget> errors;
+  std::uint64_t cell_seed = 1;  ///< draws the cell's errors
 };
 
 /// One line per thing that happened, for progress output and tests.

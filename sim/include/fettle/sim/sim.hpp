@@ -284,6 +284,7 @@ struct GrindOptions {
   config::Tool tool;                     ///< tool shape and size (TCP at the tool tip, tool z toward the spindle)
   double path_noise_mm = 0.02;           ///< executed = commanded + N(0, sigma) per axis ...
   Vec3 path_bias_mm{0.0, 0.0, 0.0};      ///< ... + this bias (a calibration error), base frame
+  double tcp_length_error_mm = 0.0;      ///< the tool is this much longer than the robot is told (tip further along -z_tool)
   double interpolation_mm = 0.1;         ///< poses at most this far apart
   double gouge_threshold_mm = 0.02;      ///< cuts into the golden body deeper than this are gouges
   std::uint64_t noise_seed = 1;

@@ -1,0 +1,62 @@
+#pragma once
+// The error budget applied to the simulated world (config::ErrorBudget; docs/simulator.md,
+// "Error budget"). What is drawn once per cell (from `cell_seed`: the same for every casting of
+// a run, as a real calibration error is) and what per capture; the scanner renders the true
+// world, and the cell decodes what it gets with what it believes (the calibration file's pose,
+// the nominal intrinsics, the commanded slide position).
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "fettle/config/errors.hpp"
+#include "fettle/sim/sim.hpp"
+
+namespace fettle::sim {
+
+/// The errors of one cell, drawn from its seed.
+struct CellErrors {
+  config::ErrorBudget budget;
+  std::uint64_t cell_seed = 1;
+  Transform T_nominal_true = Transform::Identity();  ///< the true camera frame in the believed one (hand-eye error)
+  CameraIntrinsics intrinsics_true;                   ///< what the scanner really has
+  Vec3 path_bias_mm = Vec3::Zero();                   ///< the executed path's constant offset (base frame)
+  /// The smooth depth error: sum of plane waves over the pixel grid.
+  struct Wave {
+    double kx = 0.0, ky = 0.0, phase = 0.0, amplitude_mm = 0.0;
+  };
+  std::vector<Wave> depth_waves;
+
+  /// The slide's true position error for capture `view` of casting `seed` (mm).
+  [[nodiscard]] double slide_error_mm(std::uint64_t seed, std::size_t view) const;
+  /// The smooth depth error at pixel (u, v), mm.
+  [[nodiscard]] double correlated_depth_mm(double u, double v) const;
+  /// Everything drawn, for the truth JSON.
+  [[nodiscard]] nlohmann::json to_json() const;
+};
+
+/// Draws a cell's errors; `nominal` is the intrinsics the cell decodes with.
+CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cell_seed, const CameraIntrinsics& nominal);
+
+/// The scanner as it really is: camera mounted with the hand-eye error, true intrinsics, the
+/// budget's depth noise (sigma 0: no i.i.d. noise).
+ScannerConfig true_scanner(const ScannerConfig& nominal, const CellErrors& errors);
+
+/// One capture as the cell gets it, beside the truth.
+struct CellCapture {
+  Capture capture;                  ///< cloud and range as decoded by the cell; `truth` is the truth
+  Transform believed_T_base_camera;  ///< the calibration file's pose at the commanded slide position
+  double commanded_slide_mm = 0.0;
+};
+
+/// Capture `view` of casting `seed` at commanded slide position `slide_mm`, as the cell gets it:
+/// rendered by `scanner` (the true one) at the slide's true position, the smooth depth error
+/// added, unprojected with the nominal intrinsics, labelled with the believed camera pose.
+CellCapture capture_as_cell(const Scanner& scanner, const ScannerConfig& nominal, const CellErrors& errors,
+                            const Casting& casting, double slide_mm, std::uint64_t seed, std::size_t view);
+
+/// The grinding options the budget implies (path noise, the cell's path bias, TCP length error).
+void apply_to_grinding(const CellErrors& errors, GrindOptions& options);
+
+}  // namespace fettle::sim

@@ -1,0 +1,159 @@
+// The error budget (config/sim/errors-*.toml, fettle/sim/errors.hpp): the files load and bad
+// ones are refused with file and line; every drawn error has the budget's size, repeats for the
+// same cell seed and differs for another; a capture as the cell gets it is off by exactly the
+// drawn hand-eye error, and equals the plain capture when the budget is zero.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <fstream>
+#include <numbers>
+#include <unistd.h>
+
+#include "fettle/config/errors.hpp"
+#include "fettle/core/error.hpp"
+#include "fettle/sim/errors.hpp"
+#include "sim_test_util.hpp"
+
+using namespace fettle::sim;  // NOLINT
+using fettle::config::ErrorBudget;
+
+namespace {
+
+const std::filesystem::path kConfig = std::filesystem::path(FETTLE_SOURCE_DIR) / "config/sim";
+
+ErrorBudget realistic() { return fettle::config::load_error_budget(kConfig / "errors-realistic.toml"); }
+
+std::string refusal(const std::string& text) {
+  const auto file = std::filesystem::temp_directory_path() / ("fettle-errors-" + std::to_string(::getpid()) + ".toml");
+  std::ofstream(file) << text;
+  try {
+    (void)fettle::config::load_error_budget(file);
+  } catch (const fettle::UserError& e) {
+    std::filesystem::remove(file);
+    return e.what();
+  }
+  std::filesystem::remove(file);
+  return {};
+}
+
+}  // namespace
+
+TEST(ErrorBudget, TheShippedBudgetsLoad) {
+  const auto r = realistic();
+  EXPECT_DOUBLE_EQ(r.hand_eye_mm, 0.10);
+  EXPECT_DOUBLE_EQ(r.hand_eye_deg, 0.05);
+  EXPECT_DOUBLE_EQ(r.path_bias_mm, 0.10);
+  ASSERT_TRUE(r.form_deviation_mm.has_value());
+  EXPECT_DOUBLE_EQ(*r.form_deviation_mm, 0.5);
+  EXPECT_DOUBLE_EQ(r.wheel_wear_mm_per_cm3, 0.05);
+  const auto ideal = fettle::config::load_error_budget(kConfig / "errors-ideal.toml");
+  EXPECT_DOUBLE_EQ(ideal.hand_eye_mm, 0.0);
+  EXPECT_DOUBLE_EQ(ideal.path_noise_mm, 0.02);
+  EXPECT_FALSE(ideal.form_deviation_mm.has_value()) << "the ideal world keeps the recipe's form deviation";
+}
+
+TEST(ErrorBudget, AMisspelledKeyAnOutOfRangeValueOrAnUnmodelledErrorIsRefusedWithItsLine) {
+  const auto typo = refusal("[errors]\nhand_eye_mmm = 0.1\n");
+  EXPECT_NE(typo.find(":2:"), std::string::npos) << typo;
+  EXPECT_NE(typo.find("hand_eye_mmm"), std::string::npos) << typo;
+  const auto range = refusal("[errors]\n\npath_bias_mm = -0.1\n");
+  EXPECT_NE(range.find(":3:"), std::string::npos) << range;
+  EXPECT_NE(range.find("path_bias_mm"), std::string::npos) << range;
+  const auto unmodelled = refusal("[errors]\ninterreflection_mm = 0.1\n");
+  EXPECT_NE(unmodelled.find("not modelled"), std::string::npos) << unmodelled;
+  EXPECT_NE(refusal("[errors]\ndepth_correlated_mm = 0.03\n").find("depth_correlation_px"), std::string::npos);
+  EXPECT_NE(refusal("hand_eye_mm = 0.1\n").find("errors"), std::string::npos) << "the [errors] table is required";
+  EXPECT_TRUE(refusal("[errors]\n").empty()) << "every key is optional";
+}
+
+TEST(ErrorBudget, EveryDrawHasTheBudgetsSizeAndRepeatsPerCellSeed) {
+  const auto b = realistic();
+  const CameraIntrinsics nominal;
+  const auto e = draw_cell_errors(b, 7, nominal);
+  EXPECT_NEAR(e.T_nominal_true.translation().norm(), b.hand_eye_mm, 1e-12);
+  EXPECT_NEAR(Eigen::AngleAxisd(e.T_nominal_true.linear()).angle() * 180.0 / std::numbers::pi, b.hand_eye_deg, 1e-9);
+  EXPECT_NEAR(e.path_bias_mm.norm(), b.path_bias_mm, 1e-12);
+  EXPECT_NEAR(std::abs(e.intrinsics_true.fx / nominal.fx - 1.0), b.intrinsics_focal_pct / 100.0, 1e-12);
+  EXPECT_NEAR(std::hypot(e.intrinsics_true.cx - nominal.cx, e.intrinsics_true.cy - nominal.cy), b.intrinsics_center_px, 1e-9);
+  const auto again = draw_cell_errors(b, 7, nominal);
+  EXPECT_TRUE(again.T_nominal_true.isApprox(e.T_nominal_true, 0.0));
+  EXPECT_EQ(again.path_bias_mm, e.path_bias_mm);
+  const auto other = draw_cell_errors(b, 8, nominal);
+  EXPECT_GT((other.path_bias_mm - e.path_bias_mm).norm(), 1e-6) << "another cell, another direction";
+  const auto j = e.to_json();
+  EXPECT_TRUE(j.contains("budget") && j.contains("drawn")) << j.dump();
+}
+
+TEST(ErrorBudget, SlideErrorsAreDrawnPerCaptureWithTheBudgetsSigma) {
+  const auto e = draw_cell_errors(realistic(), 3, CameraIntrinsics{});
+  double sum = 0.0, sum2 = 0.0;
+  constexpr int n = 4000;
+  for (int i = 0; i < n; ++i) {
+    const double x = e.slide_error_mm(1000 + static_cast<std::uint64_t>(i / 2), static_cast<std::size_t>(i % 2));
+    sum += x;
+    sum2 += x * x;
+  }
+  const double mean = sum / n, sd = std::sqrt(sum2 / n - mean * mean);
+  EXPECT_NEAR(sd, 0.02, 0.002);
+  EXPECT_NEAR(mean, 0.0, 0.002);
+  EXPECT_EQ(e.slide_error_mm(5, 1), e.slide_error_mm(5, 1));
+  EXPECT_NE(e.slide_error_mm(5, 1), e.slide_error_mm(5, 0));
+}
+
+TEST(ErrorBudget, TheCorrelatedDepthErrorHasTheBudgetsRmsAndIsSmooth) {
+  const auto e = draw_cell_errors(realistic(), 11, CameraIntrinsics{});
+  double sum2 = 0.0, step = 0.0;
+  int n = 0;
+  for (int v = 0; v < 1544; v += 8)
+    for (int u = 0; u < 2064; u += 8) {
+      const double d = e.correlated_depth_mm(u, v);
+      sum2 += d * d;
+      step += std::abs(e.correlated_depth_mm(u + 1, v) - d);
+      ++n;
+    }
+  const double rms = std::sqrt(sum2 / n);
+  EXPECT_NEAR(rms, 0.03, 0.012);
+  EXPECT_LT(step / n, 0.05 * rms) << "neighbouring pixels differ by far less than the error: it is smooth";
+}
+
+TEST(ErrorBudget, ACaptureAsTheCellGetsItIsOffByTheDrawnHandEyeError) {
+  const auto recipe = sim_test::pump_body();
+  const Casting casting = Casting::make(recipe, 4);
+  const auto nominal = sim_test::small_scanner(258, 193);
+  // A zero budget: the cell gets exactly the scanner's capture and pose.
+  {
+    const auto e = draw_cell_errors(ErrorBudget{}, 1, nominal.intrinsics);
+    const Scanner scanner(true_scanner(nominal, e));
+    auto plain_cfg = nominal;
+    plain_cfg.noise.sigma_z_mm = 0.0;
+    const auto plain = Scanner(plain_cfg).capture(casting, 0.0, 0);
+    const auto cc = capture_as_cell(scanner, nominal, e, casting, 0.0, 4, 0);
+    EXPECT_TRUE(cc.believed_T_base_camera.isApprox(plain.truth.T_base_camera, 1e-12));
+    ASSERT_EQ(cc.capture.cloud.points.size(), plain.cloud.points.size());
+    std::size_t same = 0, valid = 0;
+    for (std::size_t k = 0; k < plain.cloud.points.size(); ++k)
+      if (plain.cloud.points[k].allFinite()) {
+        ++valid;
+        same += cc.capture.cloud.points[k] == plain.cloud.points[k] ? 1 : 0;
+      }
+    EXPECT_GT(valid, 1000U);
+    EXPECT_EQ(same, valid);
+  }
+  // Only a 1 mm hand-eye error: each point placed with the believed pose is 1 mm (the error's
+  // translation, plus its tiny rotation) from where the truth puts it.
+  ErrorBudget b;
+  b.hand_eye_mm = 1.0;
+  const auto e = draw_cell_errors(b, 5, nominal.intrinsics);
+  const Scanner scanner(true_scanner(nominal, e));
+  const auto cc = capture_as_cell(scanner, nominal, e, casting, 120.0, 4, 1);
+  EXPECT_FALSE(cc.believed_T_base_camera.isApprox(cc.capture.truth.T_base_camera, 1e-6));
+  double worst = 0.0, least = 1e9;
+  for (const auto& p : cc.capture.cloud.points) {
+    if (!p.allFinite()) continue;
+    const double d = ((cc.believed_T_base_camera * p.cast<double>()) - (cc.capture.truth.T_base_camera * p.cast<double>())).norm();
+    worst = std::max(worst, d);
+    least = std::min(least, d);
+  }
+  EXPECT_NEAR(worst, 1.0, 1e-6);
+  EXPECT_NEAR(least, 1.0, 1e-6);
+}
