@@ -15,7 +15,7 @@ ASAN_CTEST_ARGS ?=
 # Targets test-asan builds; empty: every target, so every test runs.
 ASAN_TARGETS ?=
 
-.PHONY: all deps configure build test test-unit test-asan test-asan-ci test-tsan fuzz soak demo bench accuracy accuracy-bias accuracy-vision clean
+.PHONY: all deps configure build test test-unit test-asan test-asan-ci test-tsan fuzz soak demo bench accuracy accuracy-bias accuracy-vision robustness clean
 
 all: build
 
@@ -129,6 +129,13 @@ accuracy: build
 	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \
 	  --seeds $(ACCURACY_SEEDS) $(if $(ERRORS),--errors $(ERRORS)) --out $(BUILD_DIR)/accuracy; status=$$?; \
 	  scripts/update-results $(if $(ERRORS),accuracy-errors,accuracy) $(BUILD_DIR)/accuracy/summary.md && exit $$status
+
+# Which error of a real cell matters most: each source of config/sim/errors-realistic.toml alone,
+# 0 to 2x its size (ROBUSTNESS_STEPS), on castings drawn once at run time (ROBUSTNESS_SEEDS);
+# a table into docs/results.md and docs/images/robustness.png (scripts/robustness). By hand: the
+# default sweep grinds about 460 castings (4 hours on the 2-core machine).
+robustness: build
+	@scripts/robustness $(BUILD_DIR)
 
 # The cell's verification against gouges made on purpose: the executed path 0.4 mm below the
 # commanded one on castings drawn when it runs (BIAS_SEEDS); every casting the simulator finds
