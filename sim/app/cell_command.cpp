@@ -47,8 +47,7 @@ struct Args {
   bool manual = false;
   bool exit_when_done = false;
   bool ideal = false;
-  std::filesystem::path errors;
-  std::uint64_t cell_seed = 1;
+  fettle::sim::app::ErrorOptions errors;
 };
 
 int run_cell(const Args& a) {
@@ -61,8 +60,8 @@ int run_cell(const Args& a) {
   o.robot_speedup = a.speedup;
   o.auto_start = !a.manual;
   o.noise = !a.ideal;
-  if (!a.errors.empty()) o.errors = fettle::config::load_error_budget(a.errors);
-  o.cell_seed = a.cell_seed;
+  o.errors = fettle::sim::app::error_budget(a.errors);
+  o.cell_seed = a.errors.cell_seed;
   if (a.ephemeral) o.plc_port = o.robot_port = o.spindle_port = 0;
   std::tie(o.camera_width, o.camera_height) = fettle::sim::app::parse_resolution(a.resolution);
   fettle::sim::CellSim cell(o);
@@ -126,11 +125,7 @@ FETTLE_COMMAND("cell", [](CLI::App& app, const fettle::cli::Common&) {
   cmd->add_flag("--manual", a->manual, "No automatic Reset/Start from the PLC");
   cmd->add_flag("--exit-when-done", a->exit_when_done, "Exit once every casting got its result");
   cmd->add_flag("--ideal", a->ideal, "No scanner noise");
-  cmd->add_option("--errors", a->errors,
-                  "Error budget file ([errors], config/sim/errors-realistic.toml): the cell's real errors; fettled is "
-                  "not told")
-      ->check(CLI::ExistingFile);
-  cmd->add_option("--cell-seed", a->cell_seed, "Draws the cell's errors (--errors)")->capture_default_str();
+  fettle::sim::app::add_error_options(cmd, a->errors);
   return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{{cmd, [a] { return run_cell(*a); }}};
 });
 

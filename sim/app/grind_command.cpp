@@ -23,20 +23,24 @@ struct Args {
   std::vector<double> bias_mm{0.0, 0.0, 0.0};
   bool rescan = false;
   app::ScannerOptions scanner;
+  app::ErrorOptions errors;
 };
 
 int grind_cmd(const Args& a) {
+  const auto budget = app::error_budget(a.errors);
   const auto recipe = fettle::config::load_part(a.part);
   const auto trajectory = read_trajectory(a.trajectory);
   CellLimits limits;
   const ScannerConfig scfg = app::scanner_config(a.scanner, &limits);
   if (auto s = validate_trajectory(trajectory, limits); !s)
     throw fettle::UserError(a.trajectory.string() + ": " + s.error().message);
-  Casting casting = Casting::make(recipe, a.seed);
+  Casting casting = Casting::make(app::world_of(recipe, budget), a.seed);
   GrindOptions opt;
   opt.path_noise_mm = a.path_noise_mm;
   opt.path_bias_mm = fettle::Vec3(a.bias_mm[0], a.bias_mm[1], a.bias_mm[2]);
   opt.noise_seed = a.seed;
+  // --errors: the budget's path noise, the cell's path bias and TCP error replace the options'.
+  if (budget) apply_to_grinding(draw_cell_errors(*budget, a.errors.cell_seed, scfg.intrinsics), opt);
   const auto t0 = std::chrono::steady_clock::now();
   auto ground = grind_by_region(casting, trajectory, recipe, opt, a.tool, limits, app::progress_printer());
   if (!ground) throw fettle::UserError(a.trajectory.string() + ": " + ground.error().message);
@@ -101,6 +105,7 @@ FETTLE_COMMAND("grind", [](CLI::App& app, const fettle::cli::Common&) {
   cmd->add_option("--path-noise-mm", a->path_noise_mm, "Executed path noise sigma per axis (mm)")->check(CLI::Range(0.0, 5.0));
   cmd->add_option("--bias-mm", a->bias_mm, "Executed path bias x y z (mm), a calibration error")->expected(3);
   cmd->add_option("--out", a->out, "Write grind.json (and the rescan with --rescan) here");
+  app::add_error_options(cmd, a->errors);
   cmd->add_flag("--rescan", a->rescan, "Scan the ground part again (needs --out)");
   app::add_scanner_options(cmd, a->scanner);
   return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{{cmd, [a] { return grind_cmd(*a); }}};

@@ -3,8 +3,12 @@
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <optional>
+
+#include <nlohmann/json.hpp>
 
 #include "fettle/cli/cli.hpp"
+#include "fettle/core/atomic_file.hpp"
 #include "fettle/core/error.hpp"
 #include "sim_common.hpp"
 
@@ -18,21 +22,30 @@ struct Args {
   bool golden = false;
   std::filesystem::path png;
   app::ScannerOptions scanner;
+  app::ErrorOptions errors;
 };
 
 int scan(const Args& a) {
-  const auto recipe = fettle::config::load_part(a.part);
+  const auto budget = app::error_budget(a.errors);
+  const auto recipe = app::world_of(fettle::config::load_part(a.part), budget);
   const auto t0 = std::chrono::steady_clock::now();
   const Casting casting = a.golden ? Casting::golden(recipe, a.seed) : Casting::make(recipe, a.seed);
   std::fprintf(stderr, "built casting %llu of %s in %.2f s\n", static_cast<unsigned long long>(a.seed),
                recipe.id.c_str(), app::seconds_since(t0));
-  const Scanner scanner(app::scanner_config(a.scanner));
-  const auto& positions = scanner.config().photo_positions_mm;
+  const auto nominal = app::scanner_config(a.scanner);
+  std::optional<CellErrors> errors;
+  if (budget) errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal.intrinsics);
+  const Scanner scanner(errors ? true_scanner(nominal, *errors) : nominal);
+  const auto& positions = nominal.photo_positions_mm;
+  nlohmann::json slide_errors = nlohmann::json::array();
   for (std::size_t v = 0; v < positions.size(); ++v) {
     std::fprintf(stderr, "rendering view %zu of %zu (slide %.1f mm, %d x %d px)\n", v + 1, positions.size(),
                  positions[v], scanner.config().intrinsics.width, scanner.config().intrinsics.height);
     const auto t1 = std::chrono::steady_clock::now();
-    const Capture c = scanner.capture(casting, positions[v], v);
+    // With --errors: as the cell gets it (the truth files keep the truth; errors.json the draw).
+    const Capture c = errors ? capture_as_cell(scanner, nominal, *errors, casting, positions[v], a.seed, v).capture
+                             : scanner.capture(casting, positions[v], v);
+    if (errors) slide_errors.push_back(c.truth.slide_position_mm - positions[v]);
     const double render_s = app::seconds_since(t1);
     const std::string stem = "view" + std::to_string(v);
     std::fprintf(stderr, "writing view %zu of %zu to %s\n", v + 1, positions.size(), a.out.string().c_str());
@@ -41,6 +54,15 @@ int scan(const Args& a) {
       if (auto s = write_height_png(a.png, c); !s) throw fettle::UserError(s.error().message);
     std::printf("view %zu: slide %.1f mm, %zu valid points of %zu, rendered in %.2f s -> %s/%s.{ply,pcd,c16,f32,truth.json}\n",
                 v, positions[v], c.cloud.count_valid(), c.cloud.size(), render_s, a.out.string().c_str(), stem.c_str());
+  }
+  if (errors) {
+    auto j = errors->to_json();
+    j["slide_errors_mm"] = slide_errors;
+    j["believed_T_base_camera_note"] = "the cell believes the camera is where --cell's calibration says";
+    if (auto s = fettle::write_file_atomic(a.out / "errors.json", j.dump(2) + "\n"); !s)
+      throw fettle::UserError(s.error().message);
+    std::printf("errors drawn for cell seed %llu -> %s/errors.json\n", static_cast<unsigned long long>(a.errors.cell_seed),
+                a.out.string().c_str());
   }
   const auto p = fettle::Pose::from_transform(casting.T_base_part());
   std::printf("part %s seed %llu placed at (%.2f, %.2f, %.2f) mm, yaw %.2f deg\n", recipe.id.c_str(),
@@ -62,6 +84,7 @@ FETTLE_COMMAND("scan", [](CLI::App& app, const fettle::cli::Common&) {
   cmd->add_flag("--golden", a->golden, "Scan the golden template (the part ground to specification)");
   cmd->add_option("--png", a->png, "Also write a PNG of view 0 coloured by height");
   app::add_scanner_options(cmd, a->scanner);
+  app::add_error_options(cmd, a->errors);
   return std::vector<std::pair<CLI::App*, fettle::cli::Command::Runner>>{{cmd, [a] { return scan(*a); }}};
 });
 

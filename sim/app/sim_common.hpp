@@ -11,6 +11,7 @@
 
 #include "fettle/config/load.hpp"
 #include "fettle/core/error.hpp"
+#include "fettle/sim/errors.hpp"
 #include "fettle/sim/sim.hpp"
 
 namespace fettle::sim::app {
@@ -64,6 +65,33 @@ inline ScannerConfig scanner_config(const ScannerOptions& o, CellLimits* limits 
   c.noise.sigma_z_mm = o.noise_mm;
   c.noise.enabled = !o.no_noise;
   return c;
+}
+
+/// --errors FILE and --cell-seed N (docs/simulator.md, "Error budget").
+struct ErrorOptions {
+  std::filesystem::path file;
+  std::uint64_t cell_seed = 1;
+};
+
+inline void add_error_options(CLI::App* cmd, ErrorOptions& o) {
+  cmd->add_option("--errors", o.file,
+                  "Error budget file ([errors]: calibration, slide, intrinsics, path, depth, form, wheel wear; "
+                  "config/sim/errors-realistic.toml); the cell is not told")
+      ->check(CLI::ExistingFile);
+  cmd->add_option("--cell-seed", o.cell_seed, "Draws the cell's errors (--errors), the same for every casting")
+      ->capture_default_str();
+}
+
+/// The budget of --errors, if given.
+inline std::optional<config::ErrorBudget> error_budget(const ErrorOptions& o) {
+  if (o.file.empty()) return std::nullopt;
+  return config::load_error_budget(o.file);
+}
+
+/// The simulated castings' recipe: `recipe`, with the budget's form deviation when it has one.
+inline config::PartRecipe world_of(config::PartRecipe recipe, const std::optional<config::ErrorBudget>& budget) {
+  if (budget && budget->form_deviation_mm) recipe.geometry.variation.form_deviation_mm = *budget->form_deviation_mm;
+  return recipe;
 }
 
 /// "WIDTHxHEIGHT" of a simulated camera's range map (--resolution); UserError naming `option` otherwise.

@@ -53,8 +53,7 @@ struct Args {
   fs::path part, out;
   std::string seeds = "1-3";
   std::vector<double> path_bias_mm{0.0, 0.0, 0.0};  ///< the executed path's offset (base frame)
-  fs::path errors;                                   ///< an error budget file ([errors])
-  std::uint64_t cell_seed = 1;                       ///< draws the cell's errors (the same for every casting)
+  app::ErrorOptions errors;                          ///< --errors, --cell-seed
   double golden_spacing_mm = 0.5;
   app::ScannerOptions scanner;
   bool log_level_given = false;  ///< --log-level was given: the logs as asked
@@ -288,11 +287,10 @@ int trial(const Args& a) {
   const auto [first, last] = parse_seeds(a.seeds);
   const fettle::Vec3 path_bias(a.path_bias_mm[0], a.path_bias_mm[1], a.path_bias_mm[2]);
   const bool biased = path_bias.norm() > 0.0;
-  std::optional<fettle::config::ErrorBudget> budget;
-  if (!a.errors.empty()) budget = fettle::config::load_error_budget(a.errors);
+  const auto budget = app::error_budget(a.errors);
   if (budget && biased)
     throw fettle::UserError("--path-bias-mm and --errors both offset the path: give path_bias_mm in " +
-                            a.errors.string() + " instead");
+                            a.errors.file.string() + " instead");
   const std::string seeds_text = std::to_string(first) + "-" + std::to_string(last);
   const bool drawn = a.seeds.rfind("random:", 0) == 0;
   std::printf("seeds %s%s%s\n", seeds_text.c_str(),
@@ -301,8 +299,7 @@ int trial(const Args& a) {
   std::fflush(stdout);
   const auto recipe = fettle::config::load_part(a.part);
   // The simulated castings: the recipe's world, with the budget's form deviation when it has one.
-  auto world = recipe;
-  if (budget && budget->form_deviation_mm) world.geometry.variation.form_deviation_mm = *budget->form_deviation_mm;
+  const auto world = app::world_of(recipe, budget);
   fettle::config::CellConfig cell;
   if (!a.scanner.cell.empty()) cell = fettle::config::load_cell(a.scanner.cell);
   CellLimits limits;
@@ -310,9 +307,9 @@ int trial(const Args& a) {
   const auto nominal = app::scanner_config(a.scanner, &limits);
   std::optional<CellErrors> errors;
   if (budget) {
-    errors = draw_cell_errors(*budget, a.cell_seed, nominal.intrinsics);
-    std::printf("errors from %s, drawn for cell seed %llu: %s\n", a.errors.string().c_str(),
-                static_cast<unsigned long long>(a.cell_seed), errors->to_json()["drawn"].dump().c_str());
+    errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal.intrinsics);
+    std::printf("errors from %s, drawn for cell seed %llu: %s\n", a.errors.file.string().c_str(),
+                static_cast<unsigned long long>(a.errors.cell_seed), errors->to_json()["drawn"].dump().c_str());
     std::fflush(stdout);
   }
   const Scanner scanner(errors ? true_scanner(nominal, *errors) : nominal);
@@ -664,7 +661,7 @@ int trial(const Args& a) {
                                                     scanner.config().intrinsics.height, seed_gouges, max_gouge,
                                                     worst_where, plan_ms, verdicts, gouged_seeds, missed_gouges,
                                                     recipe.verification.gouge_depth_mm, pass,
-                                                    a.errors.empty() ? std::string() : a.errors.string(), a.cell_seed},
+                                                    a.errors.file.string(), a.errors.cell_seed},
                                                    t1, type_gouge));
   return pass ? fettle::exit_code::ok : fettle::exit_code::failure;
 }
@@ -690,12 +687,7 @@ FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common& common) {
                   "Executed path offset x y z (mm, base frame) from the commanded one: a test of the cell's verification")
       ->expected(3);
   cmd->add_option("--out", a->out, "Output directory (seed-<n>/evaluation.json, template.ply, roi_<region>.ply)")->required();
-  cmd->add_option("--errors", a->errors,
-                  "Error budget file ([errors]: calibration, slide, intrinsics, path, depth, form, wheel wear; "
-                  "config/sim/errors-realistic.toml); the cell is not told")
-      ->check(CLI::ExistingFile);
-  cmd->add_option("--cell-seed", a->cell_seed, "Draws the cell's errors (--errors), the same for every casting")
-      ->capture_default_str();
+  app::add_error_options(cmd, a->errors);
   app::add_scanner_options(cmd, a->scanner);
   auto g = std::make_shared<std::pair<fs::path, fs::path>>();
   auto spacing = std::make_shared<double>(0.5);
