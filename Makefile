@@ -70,7 +70,7 @@ ASAN_CI_TARGETS = test_core test_config test_config_bad_input test_calibration_f
                   test_plc_codec test_plc_link test_plc_bad_input \
                   test_robot_protocol test_robot_link test_robot_bad_input \
                   test_spindle_canopen \
-                  test_sim_geometry test_sim_scanner test_sim_grind test_sim_sockets
+                  test_sim_geometry test_sim_scanner test_sim_grind test_sim_sockets test_sim_errors
 test-asan-ci:
 	$(MAKE) test-asan ASAN_TARGETS="$(ASAN_CI_TARGETS)" ASAN_CTEST_ARGS="-E '_NOT_BUILT|^soak_|^fuzz_replay[.]'"
 
