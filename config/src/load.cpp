@@ -233,6 +233,12 @@ PartRecipe load_part(const std::filesystem::path& file) {
   return part;
 }
 
+ErrorBudget load_error_budget(const std::filesystem::path& file) {
+  ErrorBudget e;
+  if (auto d = read_file(file, e, detail::read_errors); !d.empty()) throw ConfigError(std::move(d));
+  return e;
+}
+
 std::vector<Diagnostic> check_file(const std::filesystem::path& file, FileKind kind) {
   if (kind == FileKind::automatic) {
     kind = FileKind::cell;

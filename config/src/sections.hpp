@@ -2,6 +2,7 @@
 // One reader per section of the cell and part files (private to fettle::config).
 // Each device's section lives in its own file: config/src/<section>.cpp.
 #include "fettle/config/cell.hpp"
+#include "fettle/config/errors.hpp"
 #include "fettle/config/part.hpp"
 #include "reader.hpp"
 
@@ -17,6 +18,9 @@ void read_camera(TableReader& root, SlideSection& slide, CameraSection& c);
 void read_robot(TableReader& root, RobotSection& r);
 void read_spindle(TableReader& root, SpindleSection& s);
 void read_calibration(TableReader& root, CalibrationSection& c);
+
+// the simulator's error budget
+void read_errors(TableReader& root, ErrorBudget& e);
 
 // part file
 void read_geometry(TableReader& root, PartGeometry& g);

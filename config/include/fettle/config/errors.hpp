@@ -23,7 +23,7 @@ struct ErrorBudget {
   double interreflection_mm = 0.0;      ///< extra depth error in concave corners (not modelled yet: refused)
   std::optional<double> form_deviation_mm;  ///< the body's smooth form deviation; replaces the recipe's
   double wheel_wear_mm_per_cm3 = 0.0;   ///< a tool's radius shrinks this much per cm3 it removed; the cell is not told
-  std::filesystem::path source;         ///< the file read
+  std::filesystem::path source;         ///< the file read (absolute)
 };
 
 /// Reads an error budget file; throws ConfigError naming file:line and the key.
