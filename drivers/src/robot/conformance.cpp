@@ -155,6 +155,13 @@ class Client {
     if (l.verb != Verb::nak || l.fields.size() < 2 || l.fields[0] != std::to_string(ref) || l.fields[1] != code)
       throw Failed{"expected " + want + ", got '" + last_raw_ + "'"};
   }
+  /// Sends PING and expects `PONG <its sequence number>`.
+  void ping() {
+    const int s = send("PING");
+    const auto l = expect_line("PONG " + std::to_string(s));
+    if (l.verb != Verb::pong || l.fields.empty() || l.fields[0] != std::to_string(s))
+      throw Failed{"expected PONG " + std::to_string(s) + ", got '" + last_raw_ + "'"};
+  }
   /// Expects the robot to close the connection (lines before it are ignored).
   void expect_close(const std::string& why) {
     const auto end = Clock::now() + milliseconds(o_.reply_timeout_ms);
@@ -274,9 +281,7 @@ std::vector<Rule> rules() {
        [](Client& c, const O& o) {
          c.hello();
          c.expect_nak(c.send("HELLO 1 " + o.cell_id + " 3000"), nak::state);
-         const int s = c.send("PING");
-         if (const auto l = c.expect_line("PONG " + std::to_string(s)); l.verb != Verb::pong)
-           throw Failed{"expected PONG after the refused HELLO"};
+         c.ping();
        }},
       {"hello.version", "6", "HELLO with a version the robot does not speak gets NAK <seq> VERSION, then it closes",
        false,
@@ -288,10 +293,7 @@ std::vector<Rule> rules() {
       {"ping", "4.6", "PING gets PONG <ref>", false,
        [](Client& c, const O&) {
          c.hello();
-         const int s = c.send("PING");
-         const auto l = c.expect_line("PONG " + std::to_string(s));
-         if (l.verb != Verb::pong || l.fields[0] != std::to_string(s))
-           throw Failed{"expected PONG " + std::to_string(s)};
+         c.ping();
        }},
       {"seq.zero", "2.1", "sequence number 0 is a syntax error: NAK 0 SYNTAX, then the robot closes", false,
        [](Client& c, const O&) {
@@ -348,8 +350,7 @@ std::vector<Rule> rules() {
          c.expect_nak(c.send("CHUNK 1 0 1"), nak::state);
          c.expect_nak(c.send(lines[0].first), nak::state);
          c.expect_nak(c.send(lines[0].second), nak::state);
-         const int s = c.send("PING");
-         if (c.expect_line("PONG " + std::to_string(s)).verb != Verb::pong) throw Failed{"expected PONG"};
+         c.ping();
        }},
       {"upload.p_past_chunk", "4.2",
        "a P line after its chunk's last point (before the next CHUNK) gets NAK <seq> ORDER and the upload is "
@@ -386,8 +387,7 @@ std::vector<Rule> rules() {
        [](Client& c, const O&) {
          c.hello();
          c.send_raw("\n\n");
-         const int s = c.send("PING");
-         if (c.expect_line("PONG " + std::to_string(s)).verb != Verb::pong) throw Failed{"expected PONG"};
+         c.ping();
        }},
       {"line.bad_byte", "1", "a byte outside 0x20..0x7E gets NAK 0 SYNTAX, then the robot closes", false,
        [](Client& c, const O&) {
@@ -429,8 +429,7 @@ std::vector<Rule> rules() {
          second.connect(true);
          second.expect_nak(0, nak::busy);
          second.expect_close("after NAK BUSY");
-         const int s = c.send("PING");
-         if (c.expect_line("PONG " + std::to_string(s)).verb != Verb::pong) throw Failed{"expected PONG"};
+         c.ping();
        }},
       {"watchdog", "8",
        "after watchdog_ms without a line the robot stops, sends FAULT 0 WATCHDOG and closes the connection", false,
