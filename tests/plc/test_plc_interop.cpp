@@ -219,9 +219,8 @@ TEST(PlcInterop, SlideAndResultHandshakesWithAPymodbusPlc) {
 
   const auto command = link.command_slide(2);
   ASSERT_TRUE(command.ok());
-  const auto arrived = events.wait_for<plc::SlideState>(kWait, [&](const plc::SlideState& s) {
-    return s.command_acked >= *command && s.status == plc::SlideStatus::at_position && s.position == 2;
-  });
+  const auto arrived =
+      events.wait_for<plc::SlideState>(kWait, [&](const plc::SlideState& s) { return s.reached(*command, 2); });
   ASSERT_TRUE(arrived) << events.dump() << py.output();
   ASSERT_TRUE(py.wait_line(std::regex("^slide to 2$"), kWait)) << py.output();
   for (const auto& s : events.all<plc::SlideState>())

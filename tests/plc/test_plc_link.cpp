@@ -178,19 +178,17 @@ TEST_F(PlcLinkTest, ASlideMoveIsDoneOnlyOnceThePlcAcknowledgedItsCommand) {
   const auto first = link->command_slide(2);
   ASSERT_TRUE(first.ok());
   EXPECT_EQ(*first, 1U);
-  const auto done = [](std::uint64_t number, plc::SlideStatus status, int position) {
-    return [=](const plc::SlideState& s) {
-      return s.command_acked >= number && s.status == status && s.position == position;
-    };
+  const auto done = [](std::uint64_t number, int target) {
+    return [=](const plc::SlideState& s) { return s.reached(number, target); };
   };
-  ASSERT_TRUE(events.wait_for<plc::SlideState>(kWait, done(*first, plc::SlideStatus::at_position, 2)))
+  ASSERT_TRUE(events.wait_for<plc::SlideState>(kWait, done(*first, 2)))
       << events.dump();
   // Again to the same position: the slide is there already, yet the command counts only once the
   // PLC took it.
   const auto second = link->command_slide(2);
   ASSERT_TRUE(second.ok());
   EXPECT_EQ(*second, 2U);
-  const auto again = events.wait_for<plc::SlideState>(kWait, done(*second, plc::SlideStatus::at_position, 2));
+  const auto again = events.wait_for<plc::SlideState>(kWait, done(*second, 2));
   ASSERT_TRUE(again) << events.dump();
   EXPECT_EQ(sim->registers().at(plc::reg::slide_command_ack), sim->registers().at(plc::reg::slide_command_toggle));
 }

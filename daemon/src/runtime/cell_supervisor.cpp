@@ -274,7 +274,7 @@ asio::awaitable<void> Runtime::Impl::slide_home_best_effort() {
   const auto command = plc_link->command_slide(0);
   if (!command) co_return;
   for (int i = 0; i < cell.slide.travel_timeout_ms / 50 && plc_up &&
-                  !(slide.command_acked >= *command && slide.status == plc::SlideStatus::at_home) &&
+                  !slide.reached(*command, 0) &&
                   slide.status != plc::SlideStatus::fault;
        ++i)
     co_await sleep(milliseconds(50));
@@ -335,10 +335,7 @@ void Runtime::Impl::on_plc(const plc::Event& e) {
           if (slide_wait) {
             if (ev.status == plc::SlideStatus::fault) {
               slide_wait->set(Error{"slide.fault", "the PLC reports a slide fault"});
-            } else if (ev.command_acked >= slide_command &&
-                       ((slide_target == 0 && ev.status == plc::SlideStatus::at_home) ||
-                        (slide_target > 0 && ev.status == plc::SlideStatus::at_position &&
-                         ev.position == slide_target))) {
+            } else if (ev.reached(slide_command, slide_target)) {
               slide_wait->set(Status{});
             }
           }

@@ -9,6 +9,7 @@
 #include <atomic>
 #include <cerrno>
 #include <deque>
+#include <tuple>
 #include <chrono>
 #include <condition_variable>
 #include <mutex>
@@ -97,9 +98,10 @@ struct Link::Impl {
   /// fettled enters (acting states last microseconds), in order (docs/plc-interface.md).
   std::deque<packml::State> states;
   std::optional<packml::State> last_state_queued;
-  /// Slide commands not yet written, with their numbers: one at a time, each once the PLC
-  /// acknowledged the previous one.
-  std::deque<std::pair<std::uint64_t, int>> slide_commands;
+  /// The slide command not yet written (its number, its target): one on the wire at a time, the
+  /// next once the PLC acknowledged the previous one; a newer command replaces it (only the
+  /// latest target matters).
+  std::optional<std::pair<std::uint64_t, int>> slide_command;
   std::uint64_t slide_commands_numbered = 0;
   /// Results not yet written: one at a time, each once the PLC acknowledged the previous one.
   std::deque<CycleResult> results;
@@ -347,13 +349,10 @@ struct Link::Impl {
       }
       // A slide command or result goes out only on a poll whose PLC block was read and valid, and
       // once the PLC acknowledged the previous one.
-      if (acted && !slide_commands.empty() && slide_command_acked == slide_command_written) {
-        // Commands queued while the previous one was out: only the latest target matters.
-        while (slide_commands.size() > 1) slide_commands.pop_front();
-        slide_command_written = slide_commands.front().first;
-        outputs.slide_target = slide_commands.front().second;
+      if (acted && slide_command && slide_command_acked == slide_command_written) {
+        std::tie(slide_command_written, outputs.slide_target) = *slide_command;
         outputs.slide_command_toggle ^= 1;
-        slide_commands.pop_front();
+        slide_command.reset();
       }
       if (acted && !results.empty() && !result_unacked) {
         outputs.result = results.front();
@@ -492,7 +491,7 @@ Result<std::uint64_t> Link::command_slide(int target) {
                                              std::to_string(n) + ")"};
   std::lock_guard lock(impl_->mutex);
   const auto number = ++impl_->slide_commands_numbered;
-  impl_->slide_commands.emplace_back(number, target);
+  impl_->slide_command = std::make_pair(number, target);
   return number;
 }
 

@@ -67,6 +67,13 @@ struct SlideState {
   SlideStatus status = SlideStatus::unknown;
   int position = 0;               ///< 0 = home, 1..n photo position
   std::uint64_t command_acked = 0;  ///< the last slide command (numbered from 1) the PLC acknowledged
+
+  /// The move of slide command `command` to `target` (0 = home) is done: that command, or a
+  /// later one, is acknowledged and the slide reports the target.
+  [[nodiscard]] bool reached(std::uint64_t command, int target) const {
+    return command_acked >= command && (target == 0 ? status == SlideStatus::at_home
+                                                    : status == SlideStatus::at_position && position == target);
+  }
 };
 /// The PLC acknowledged the last published cycle result (cycle_result_ack): the next one may be
 /// published, and the next cycle request may be accepted.
