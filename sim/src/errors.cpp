@@ -68,6 +68,14 @@ double CellErrors::correlated_depth_mm(double u, double v) const {
   return s;
 }
 
+void CellErrors::add_correlated_depth(RangeImageF32& range) const {
+  if (depth_waves.empty()) return;
+  for (std::size_t k = 0; k < range.data.size(); ++k)
+    if (std::isfinite(range.data[k]))
+      range.data[k] += static_cast<float>(correlated_depth_mm(static_cast<double>(k % range.width),
+                                                              static_cast<double>(k / range.width)));
+}
+
 nlohmann::json CellErrors::to_json() const {
   const auto& b = budget;
   const Eigen::AngleAxisd aa(T_nominal_true.linear());
@@ -108,12 +116,12 @@ CellCapture capture_as_cell(const Scanner& scanner, const ScannerConfig& nominal
   const bool same_intrinsics = K.fx == T.fx && K.fy == T.fy && K.cx == T.cx && K.cy == T.cy;
   if (same_intrinsics && errors.depth_waves.empty()) return out;
   auto& c = out.capture;
+  errors.add_correlated_depth(c.range);
   const auto W = static_cast<std::size_t>(c.range.width);
   for (std::size_t k = 0; k < c.range.data.size() && k < c.cloud.points.size(); ++k) {
-    float& z = c.range.data[k];
+    const float z = c.range.data[k];
     if (!std::isfinite(z)) continue;
     const double u = static_cast<double>(k % W), v = static_cast<double>(k / W);
-    z = static_cast<float>(z + errors.correlated_depth_mm(u, v));
     c.cloud.points[k] = (K.ray(u, v) * static_cast<double>(z)).cast<float>();
   }
   return out;

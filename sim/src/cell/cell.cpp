@@ -134,15 +134,13 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       const std::size_t view = self->views_rendered++;
       const auto& e = self->drawn;
       const double true_mm = slide_mm + (e ? e->slide_error_mm(scene.seed(), view) : 0.0);
-      const Capture capture = self->scanner->capture(scene, true_mm, view);
+      Capture capture = self->scanner->capture(scene, true_mm, view);
+      if (e) e->add_correlated_depth(capture.range);
       const auto& z = capture.range;
       if (z.width != model.width || z.height != model.height) return;
       for (std::size_t i = 0; i < out.size(); ++i) {
-        float v = z.data[i];
+        const float v = z.data[i];
         if (!std::isfinite(v)) continue;
-        if (e && !e->depth_waves.empty())
-          v += static_cast<float>(e->correlated_depth_mm(static_cast<double>(i % model.width),
-                                                         static_cast<double>(i / model.width)));
         const double raw = std::round((v - model.offset_mm) / model.scale_mm);
         if (raw >= 1.0 && raw <= 65535.0) out[i] = static_cast<std::uint16_t>(raw);
       }

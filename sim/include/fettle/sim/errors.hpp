@@ -32,6 +32,8 @@ struct CellErrors {
   [[nodiscard]] double slide_error_mm(std::uint64_t seed, std::size_t view) const;
   /// The smooth depth error at pixel (u, v), mm.
   [[nodiscard]] double correlated_depth_mm(double u, double v) const;
+  /// Adds the smooth depth error to every valid pixel of a range image (Z, mm).
+  void add_correlated_depth(RangeImageF32& range) const;
   /// Everything drawn, for the truth JSON.
   [[nodiscard]] nlohmann::json to_json() const;
 };
