@@ -8,6 +8,7 @@
 #include <iostream>
 #include <memory>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "fettle/cli/cli.hpp"
@@ -43,21 +44,8 @@ robot::ConformanceOptions options_from(const Args& a) {
                               (s.workspace_min_mm[1] + s.workspace_max_mm[1]) / 2.0,
                               s.workspace_min_mm[2] + (s.workspace_max_mm[2] - s.workspace_min_mm[2]) / 4.0);
   }
-  if (!a.address.empty()) {
-    const auto colon = a.address.rfind(':');
-    int port = -1;
-    try {
-      std::size_t used = 0;
-      if (colon != std::string::npos) port = std::stoi(a.address.substr(colon + 1), &used);
-      if (colon == std::string::npos || used != a.address.size() - colon - 1) port = -1;
-    } catch (const std::exception&) {
-      port = -1;
-    }
-    if (port < 1 || port > 65535)
-      throw fettle::UserError("--address '" + a.address + "': expected HOST:PORT with a port 1-65535, e.g. 192.168.20.40:30100");
-    o.address = a.address.substr(0, colon);
-    o.port = port;
-  }
+  if (!a.address.empty())
+    std::tie(o.address, o.port) = fettle::cli::parse_address_port(a.address, "--address", 1, "192.168.20.40:30100");
   if (a.config.empty() && a.address.empty())
     throw fettle::UserError("which robot controller? give --address HOST:PORT (or --config CELL.toml)");
   if (!a.cell_id.empty()) o.cell_id = a.cell_id;

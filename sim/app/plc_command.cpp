@@ -11,6 +11,7 @@
 #include <memory>
 #include <sstream>
 #include <string>
+#include <tuple>
 #include <thread>
 
 #include "fettle/config/load.hpp"
@@ -37,22 +38,6 @@ struct Args {
   const CLI::Option* listen_given = nullptr;
 };
 
-std::pair<std::string, int> split_listen(const std::string& s) {
-  const auto colon = s.rfind(':');
-  if (colon == std::string::npos) throw fettle::UserError("--listen '" + s + "': expected ADDRESS:PORT, e.g. 127.0.0.1:0");
-  int port = -1;
-  try {
-    std::size_t used = 0;
-    port = std::stoi(s.substr(colon + 1), &used);
-    if (used != s.size() - colon - 1) port = -1;
-  } catch (const std::exception&) {
-    port = -1;
-  }
-  if (port < 0 || port > 65535)
-    throw fettle::UserError("--listen '" + s + "': port must be 0 (any free port) to 65535");
-  return {s.substr(0, colon), port};
-}
-
 /// Reads whatever full lines stdin has, without blocking; false at end of input.
 bool read_stdin_lines(std::string& buffer, std::vector<std::string>& lines) {
   pollfd p{STDIN_FILENO, POLLIN, 0};
@@ -77,7 +62,7 @@ int run_plc(Args a) {
     o.photo_positions_mm = cell.slide.photo_positions_mm;
     o.home_mm = cell.slide.home_mm;
   }
-  std::tie(o.address, o.port) = split_listen(a.listen);
+  std::tie(o.address, o.port) = fettle::cli::parse_address_port(a.listen, "--listen", 0, "127.0.0.1:0");
   if (a.register_base >= 0) o.register_base = a.register_base;
   if (!a.positions_mm.empty()) o.photo_positions_mm = a.positions_mm;
   o.slide_speed_mm_s = a.slide_speed_mm_s;

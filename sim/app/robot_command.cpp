@@ -31,23 +31,6 @@ struct Args {
   const CLI::Option* max_speed_given = nullptr;
 };
 
-std::pair<std::string, int> split_listen(const std::string& s) {
-  const auto colon = s.rfind(':');
-  if (colon == std::string::npos) throw fettle::UserError("--listen '" + s + "': expected ADDRESS:PORT, e.g. 127.0.0.1:0");
-  const std::string port_text = s.substr(colon + 1);
-  int port = -1;
-  try {
-    std::size_t used = 0;
-    port = std::stoi(port_text, &used);
-    if (used != port_text.size()) port = -1;
-  } catch (const std::exception&) {
-    port = -1;
-  }
-  if (port < 0 || port > 65535)
-    throw fettle::UserError("--listen '" + s + "': port '" + port_text + "' is not 0..65535 (0 = any free port)");
-  return {s.substr(0, colon), port};
-}
-
 int run_robot(Args& a) {
   auto& o = a.options;
   if (!a.cell.empty()) {
@@ -60,7 +43,7 @@ int run_robot(Args& a) {
     if (a.envelope_min.empty()) a.envelope_min.assign(s.workspace_min_mm.begin(), s.workspace_min_mm.end());
     if (a.envelope_max.empty()) a.envelope_max.assign(s.workspace_max_mm.begin(), s.workspace_max_mm.end());
   }
-  std::tie(o.address, o.port) = split_listen(a.listen);
+  std::tie(o.address, o.port) = fettle::cli::parse_address_port(a.listen, "--listen", 0, "127.0.0.1:0");
   if (!a.nak.empty()) {
     const auto colon = a.nak.find(':');
     if (colon == std::string::npos) throw fettle::UserError("--nak '" + a.nak + "': expected VERB:CODE, e.g. END:CRC");

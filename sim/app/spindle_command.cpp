@@ -41,22 +41,6 @@ struct Args {
   const CLI::Option* node_id_given = nullptr;
 };
 
-std::pair<std::string, int> split_address(const std::string& s) {
-  const auto colon = s.rfind(':');
-  if (colon == std::string::npos)
-    throw fettle::UserError("--listen '" + s + "': expected ADDRESS:PORT, e.g. 127.0.0.1:0");
-  int port = -1;
-  try {
-    std::size_t used = 0;
-    port = std::stoi(s.substr(colon + 1), &used);
-    if (used != s.size() - colon - 1) port = -1;
-  } catch (const std::exception&) {
-    port = -1;
-  }
-  if (port < 0 || port > 65535) throw fettle::UserError("--listen '" + s + "': port must be 0 (any free port) to 65535");
-  return {s.substr(0, colon), port};
-}
-
 std::string apply_command(fettle::sim::SimulatedSpindleDrive& drive, const std::string& line) {
   std::istringstream in(line);
   std::string cmd, arg;
@@ -112,7 +96,7 @@ int run_spindle(Args a) {
   if (!a.can.empty()) {
     transport = fettle::canopen::open_socketcan(io, a.can);
   } else {
-    const auto [address, port] = split_address(a.listen);
+    const auto [address, port] = fettle::cli::parse_address_port(a.listen, "--listen", 0, "127.0.0.1:0");
     bus = fettle::canopen::InProcessBus::create();
     transport = bus->attach(io, "drive");
     server = std::make_unique<fettle::sim::SocketcandServer>(io, bus, address, port, a.bus);

@@ -22,6 +22,27 @@
 
 namespace fettle::cli {
 
+/// "ADDRESS:PORT" given to `option`: the address and the port, `min_port` (0: any free port) to
+/// 65535; a UserError naming the option and the text otherwise (`example` shows the form).
+inline std::pair<std::string, int> parse_address_port(const std::string& text, const std::string& option, int min_port,
+                                                      const std::string& example) {
+  const auto colon = text.rfind(':');
+  if (colon == std::string::npos)
+    throw UserError(option + " '" + text + "': expected ADDRESS:PORT, e.g. " + example);
+  int port = -1;
+  try {
+    std::size_t used = 0;
+    port = std::stoi(text.substr(colon + 1), &used);
+    if (used != text.size() - colon - 1) port = -1;
+  } catch (const std::exception&) {
+    port = -1;
+  }
+  if (port < min_port || port > 65535)
+    throw UserError(option + " '" + text + "': port must be " +
+                    (min_port == 0 ? std::string("0 (any free port)") : std::to_string(min_port)) + " to 65535");
+  return {text.substr(0, colon), port};
+}
+
 /// Options every command sees.
 struct Common {
   std::optional<std::string> log_level;  ///< --log-level, overrides config levels
