@@ -16,12 +16,15 @@
 #include <string>
 #include <vector>
 
+#include "../support/child.hpp"
 #include "../support/sim_cell_file.hpp"
 #include "event_log.hpp"
 
 namespace plc = fettle::drivers::plc;
 namespace packml = fettle::packml;
+using fettle::test::Child;
 using fettle::test::EventLog;
+using fettle::test::run_capture;
 using fettle::test::fast_options;
 using std::chrono::milliseconds;
 
@@ -31,97 +34,6 @@ constexpr milliseconds kWait{5000};
 const std::string kPython = "/usr/bin/python3";  // Debian's, where python3-pymodbus lives
 const std::string kScript = std::string(FETTLE_SOURCE_DIR) + "/tests/plc/pymodbus_plc.py";
 const std::string kSim = std::string(FETTLE_BIN_DIR) + "/fettle-sim";
-
-/// A child process with piped stdin/stdout; killed (SIGTERM, then SIGKILL) on destruction.
-class Child {
- public:
-  explicit Child(const std::vector<std::string>& argv) {
-    int in[2];
-    int out[2];
-    if (::pipe(in) != 0 || ::pipe(out) != 0) return;
-    pid_ = ::fork();
-    if (pid_ == 0) {
-      ::dup2(in[0], STDIN_FILENO);
-      ::dup2(out[1], STDOUT_FILENO);
-      ::close(in[1]);
-      ::close(out[0]);
-      std::vector<char*> args;
-      for (const auto& a : argv) args.push_back(const_cast<char*>(a.c_str()));
-      args.push_back(nullptr);
-      ::execv(args[0], args.data());
-      ::_exit(127);
-    }
-    ::close(in[0]);
-    ::close(out[1]);
-    to_child_ = in[1];
-    from_child_ = out[0];
-  }
-  ~Child() { kill(); }
-  Child(const Child&) = delete;
-  Child& operator=(const Child&) = delete;
-
-  /// The next line of output matching `re` (skipping others), or nothing after `timeout`.
-  std::optional<std::smatch> wait_line(const std::regex& re, milliseconds timeout, std::string* line_out = nullptr) {
-    const auto end = std::chrono::steady_clock::now() + timeout;
-    while (true) {
-      for (auto nl = buffer_.find('\n'); nl != std::string::npos; nl = buffer_.find('\n')) {
-        line_ = buffer_.substr(0, nl);
-        buffer_.erase(0, nl + 1);
-        seen_ += line_ + "\n";
-        std::smatch m;
-        if (std::regex_search(line_, m, re)) {
-          if (line_out != nullptr) *line_out = line_;
-          return m;
-        }
-      }
-      const auto left = std::chrono::duration_cast<milliseconds>(end - std::chrono::steady_clock::now());
-      if (left.count() <= 0 || from_child_ < 0) return std::nullopt;
-      pollfd p{from_child_, POLLIN, 0};
-      if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) return std::nullopt;
-      std::array<char, 1024> chunk{};
-      const auto n = ::read(from_child_, chunk.data(), chunk.size());
-      if (n <= 0) return std::nullopt;
-      buffer_.append(chunk.data(), static_cast<std::size_t>(n));
-    }
-  }
-
-  void write_line(const std::string& s) {
-    const std::string l = s + "\n";
-    ASSERT_EQ(::write(to_child_, l.data(), l.size()), static_cast<ssize_t>(l.size()));
-  }
-
-  void kill() {
-    if (pid_ > 0) {
-      ::kill(pid_, SIGTERM);
-      for (int i = 0; i < 100; ++i) {
-        if (::waitpid(pid_, nullptr, WNOHANG) == pid_) {
-          pid_ = -1;
-          break;
-        }
-        ::usleep(10000);
-      }
-      if (pid_ > 0) {
-        ::kill(pid_, SIGKILL);
-        ::waitpid(pid_, nullptr, 0);
-      }
-      pid_ = -1;
-    }
-    if (to_child_ >= 0) ::close(to_child_);
-    if (from_child_ >= 0) ::close(from_child_);
-    to_child_ = from_child_ = -1;
-  }
-
-  [[nodiscard]] bool started() const { return pid_ > 0; }
-  [[nodiscard]] const std::string& output() const { return seen_; }
-
- private:
-  pid_t pid_ = -1;
-  int to_child_ = -1;
-  int from_child_ = -1;
-  std::string buffer_;
-  std::string line_;
-  std::string seen_;
-};
 
 const std::regex kListening(R"(^listening 127\.0\.0\.1:(\d+)$)");
 
@@ -134,20 +46,6 @@ std::optional<int> listening_port(Child& c) {
 bool pymodbus_available() {
   const std::string cmd = kPython + " -c 'import pymodbus.server.async_io' >/dev/null 2>&1";
   return std::system(cmd.c_str()) == 0;  // NOLINT(cert-env33-c)
-}
-
-std::string run_capture(const std::string& cmd, int& exit_code) {
-  FILE* pipe = ::popen((cmd + " 2>&1").c_str(), "r");
-  if (pipe == nullptr) {
-    exit_code = -1;
-    return {};
-  }
-  std::string out;
-  std::array<char, 4096> buf{};
-  while (std::fgets(buf.data(), buf.size(), pipe) != nullptr) out += buf.data();
-  const int status = ::pclose(pipe);
-  exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  return out;
 }
 
 TEST(PlcInterop, LinkTalksToAPymodbusPlcAndRecoversWhenItRestarts) {

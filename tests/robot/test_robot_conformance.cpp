@@ -2,11 +2,8 @@
 // the simulated robot, a robot that breaks a rule fails exactly the rules it breaks, and
 // `fettle robot conformance` reports it with its exit code.
 #include <gtest/gtest.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
 
-#include <cstdio>
+#include <chrono>
 #include <regex>
 #include <set>
 #include <string>
@@ -16,7 +13,7 @@
 #include <boost/asio/io_context.hpp>
 #include <boost/asio/post.hpp>
 
-#include "../support/spawn.hpp"
+#include "../support/child.hpp"
 #include "fettle/drivers/robot_conformance.hpp"
 #include "fettle/sim/robot.hpp"
 
@@ -147,36 +144,23 @@ TEST(RobotConformance, NoRobotAtTheAddressFailsEveryRuleWithTheConnectError) {
 
 // The command a robot integrator runs, against `fettle-sim robot` in its own process.
 TEST(RobotConformance, FettleRobotConformancePassesAgainstFettleSimRobot) {
-  auto sim = fettle::test::spawn({std::string(FETTLE_BIN_DIR) + "/fettle-sim", "--log-level", "warn", "robot",
-                                  "--listen", "127.0.0.1:0", "--speedup", "0"});
-  ASSERT_GT(sim.pid, 0);
-  char line[256] = {};
-  ASSERT_NE(std::fgets(line, sizeof line, sim.out), nullptr);
-  std::smatch m;
-  const std::string first(line);
-  ASSERT_TRUE(std::regex_search(first, m, std::regex(R"(listening on 127\.0\.0\.1:(\d+))"))) << first;
-  const std::string port = m[1];
+  const std::string bin = FETTLE_BIN_DIR;
+  fettle::test::Child sim({bin + "/fettle-sim", "--log-level", "warn", "robot", "--listen", "127.0.0.1:0", "--speedup", "0"});
+  ASSERT_TRUE(sim.started());
+  const auto m = sim.wait_line(std::regex(R"(listening on 127\.0\.0\.1:(\d+))"), std::chrono::seconds(5));
+  ASSERT_TRUE(m) << sim.output();
+  const std::string port = (*m)[1].str();
 
-  const std::string cmd = std::string(FETTLE_BIN_DIR) + "/fettle robot conformance --address 127.0.0.1:" + port +
-                          " --motion --timeout-ms 1500 2>&1";
-  FILE* p = ::popen(cmd.c_str(), "r");
-  ASSERT_NE(p, nullptr);
-  std::string out;
-  char buf[512];
-  while (std::fgets(buf, sizeof buf, p) != nullptr) out += buf;
-  const int status = ::pclose(p);
-  ASSERT_TRUE(WIFEXITED(status)) << out;
-  EXPECT_EQ(WEXITSTATUS(status), 0) << out;
+  int rc = 0;
+  const auto out = fettle::test::run_capture(
+      bin + "/fettle robot conformance --address 127.0.0.1:" + port + " --motion --timeout-ms 1500", rc);
+  EXPECT_EQ(rc, 0) << out;
   EXPECT_TRUE(std::regex_search(out, std::regex(R"(\n(\d+) of \1 rules pass \(docs/robot-protocol\.md\))"))) << out;
   EXPECT_NE(out.find("PASS  seq.skip (section 2.1)"), std::string::npos) << out;
   EXPECT_EQ(out.find("FAIL"), std::string::npos) << out;
 
   // Nothing listening any more: exit code 3 (a device could not be reached).
-  ::kill(sim.pid, SIGTERM);
-  ::waitpid(sim.pid, nullptr, 0);
-  ::fclose(sim.out);
-  const std::string gone = std::string(FETTLE_BIN_DIR) + "/fettle robot conformance --address 127.0.0.1:1 --timeout-ms 200 >/dev/null 2>&1";
-  const int rc = std::system(gone.c_str());  // NOLINT(cert-env33-c)
-  ASSERT_TRUE(WIFEXITED(rc));
-  EXPECT_EQ(WEXITSTATUS(rc), 3);
+  sim.kill();
+  (void)fettle::test::run_capture(bin + "/fettle robot conformance --address 127.0.0.1:1 --timeout-ms 200", rc);
+  EXPECT_EQ(rc, 3);
 }
