@@ -28,7 +28,6 @@
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
 #include "fettle/sim/camera.hpp"
-#include "fettle/sim/sim.hpp"
 
 namespace {
 
@@ -109,13 +108,7 @@ int run_camera(const Args& a) {
     const auto recipe = fettle::config::load_part(a.part);
     log->info("building casting {} of {} for the simulated camera", a.seed, a.part.string());
     source = fettle::sim::scanner_range_source(recipe, a.seed, model, !a.ideal, cell ? &*cell : nullptr);
-    if (cell) {
-      fettle::sim::ScannerConfig placed;
-      placed.place_in_cell(*cell);
-      const auto p = placed.T_base_camera(0.0).translation();
-      log->info("camera placed as {} says: at slide 0 mm it is at base ({:.1f}, {:.1f}, {:.1f}) mm", a.cell.string(),
-                p.x(), p.y(), p.z());
-    }
+    log->info("serving {}", source.description);
   } else {
     if (cell) log->warn("--cell places the camera over a casting; without --part the synthetic scene is served");
     log->info("no --part given: serving the synthetic plane-and-sphere scene");

@@ -1,6 +1,7 @@
 // The simulated camera's range images from the simulator's scanner (sim.hpp): the casting in
 // the fixture, seen from the camera on the slide.
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <memory>
 
@@ -29,7 +30,15 @@ RangeImageSource scanner_range_source(const config::PartRecipe& recipe, std::uin
   RangeImageSource source;
   source.model = model;
   source.description = "casting " + std::to_string(seed) + " of " + casting->part_id() + " (simulator scanner" +
-                       (noise ? ", with noise)" : ", ideal)");
+                       (noise ? ", with noise" : ", ideal");
+  if (cell != nullptr) {
+    const Vec3 p = config.T_base_camera(0.0).translation();
+    char at[120];
+    std::snprintf(at, sizeof at, "; placed by %s: at slide 0 mm the camera is at base (%.1f, %.1f, %.1f) mm",
+                  cell->source.string().c_str(), p.x(), p.y(), p.z());
+    source.description += at;
+  }
+  source.description += ")";
   source.render = [casting, scanner, model](double slide_mm, std::vector<std::uint16_t>& out) {
     const Capture capture = scanner->capture(*casting, slide_mm);
     const auto& z = capture.range;
