@@ -102,6 +102,14 @@ void read_cell(TableReader& root, CellConfig& cfg) {
     t->number("keep_mb", cfg.records.keep_mb, {1.0, 1e9});
     t->number("min_free_mb", cfg.records.min_free_mb, {0.0, 1e9});
   }
+  if (auto t = root.table("compensation")) {
+    auto& c = cfg.compensation;
+    t->boolean("enabled", c.enabled);
+    t->number("gain", c.gain, {0.01, 1.0});
+    t->number("max_offset_mm", c.max_offset_mm, {0.0, 5.0});
+    t->integer("min_points", c.min_points, {1, 1000000});
+    t->path("state_file", c.state_file);
+  }
 }
 
 void read_part(TableReader& root, PartRecipe& part) {

@@ -167,8 +167,11 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     // scene = base (= fixture) frame
     // exactly orthonormal: validation maps every pose back into the part frame with its
     // inverse and must read it as the planner placed it
-    in.T_base_part = orthonormalized(weak ? out.T_base_part : rr.registration.T_scene_template);
-    const Transform T_part_region = in.T_base_part.inverse() * rr.registration.T_scene_template;
+    const Transform T_base_located = orthonormalized(weak ? out.T_base_part : rr.registration.T_scene_template);
+    const Transform T_part_region = T_base_located.inverse() * rr.registration.T_scene_template;
+    // commanded where the cell's tool, with its learned bias, cuts where the plan says
+    in.T_base_part = T_base_located;
+    in.T_base_part.translation() -= options.cell_bias_mm;
     in.excess_points_part.reserve(rr.excess.points.size());
     for (const auto& p : rr.excess.points) in.excess_points_part.push_back(T_part_region * p.cast<double>());
     in.template_sdf = loaded.template_sdf;

@@ -293,6 +293,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     out.regions.push_back(judge_region(region, recipe.verification,
                                        static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
                                        std::move(residual)));
+    out.regions.back().T_base_region = out.T_base_part * T_region_part.inverse();
   }
 
   // Gouges wherever the tool went: the whole part's re-scan (part frame, the whole part's pose)

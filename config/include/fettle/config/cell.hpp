@@ -56,6 +56,18 @@ struct RecordsSection {
   double min_free_mb = 500.0;  ///< free space kept on the state directory's file system (oldest records go first)
 };
 
+/// The cell learns its own bias (docs/compensation.md): after each verified cycle, where the
+/// tool cut against where it was told to cut (the re-scan's cut surfaces against the commanded
+/// tool surface) corrects every later path. Tests: Compensation.*, trial --learning.
+struct CompensationSection {
+  bool enabled = true;
+  double gain = 0.5;             ///< share of each cycle's measured offset taken into the estimate (0-1]
+  double max_offset_mm = 0.5;    ///< the estimate is bounded to this length (base frame)
+  int min_points = 50;           ///< cut-surface points a direction needs to be estimated along it
+  /// Where the estimate is kept across restarts; empty: <state_dir>/compensation.json.
+  std::filesystem::path state_file;
+};
+
 struct CellConfig {
   std::filesystem::path source;  ///< the file this was read from
   CellSection cell;
@@ -69,6 +81,7 @@ struct CellConfig {
   ControlSection control;
   RecordsSection records;
   CalibrationSection calibration;
+  CompensationSection compensation;
 };
 
 }  // namespace fettle::config

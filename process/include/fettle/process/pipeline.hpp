@@ -140,6 +140,10 @@ struct RegionMetrics {
 struct ProcessOptions {
   /// Regions to plan (names); empty = all. A re-grind plans only what verify() flagged.
   std::vector<std::string> regions;
+  /// The cell's learned bias (fettle/process/compensation.hpp), base frame: every path is
+  /// commanded shifted by minus it, so that the tool cuts where the plan says. Planning and
+  /// validation work in the part frame as located, then place it in the base frame shifted.
+  Vec3 cell_bias_mm = Vec3::Zero();
 };
 
 struct ProcessOutput {
@@ -185,6 +189,9 @@ struct RegionVerification {
   double max_below_mm = 0.0;         ///< deepest point below the template (>= 0, a gouge)
   Verdict verdict = Verdict::ok;
   std::string reason;                ///< why REGRIND / NOK (threshold and value)
+  /// The pose that puts roi_points_part into the base frame (the region's own fine pose in the
+  /// re-scan, else the whole part's).
+  Transform T_base_region = Transform::Identity();
   std::vector<Eigen::Vector3f> roi_points_part;  ///< the ROI points (part frame), for roi_<region>.ply
   std::vector<float> residual_mm;               ///< their signed distances (> 0 = above)
 };

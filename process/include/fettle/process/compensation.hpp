@@ -1,0 +1,90 @@
+#pragma once
+// The cell learns its own bias (docs/compensation.md).
+//
+// A cell's systematic errors (hand-eye calibration, the robot's path offset, a tool length off)
+// move every cut the same way. The verification scan shows where the tool really cut: on the
+// surfaces it cut, the re-scanned points lie on the tool's surface as it really was, i.e. on the
+// commanded tool surface shifted by the cell's offset b. For a re-scan point q there,
+//     sd_commanded_tool(q) = n(q) . b          (n: the tool surface's outward normal at q)
+// so a least-squares fit over the cut surfaces measures b along every direction their normals
+// span, in the base frame and with the camera's own error included (the re-scan sees the cut
+// and the part through the same camera, and the next plan is placed through it too).
+//
+// measure_cut_offset() does that after a cycle; CellBias keeps the estimate across cycles
+// (update() takes a share `gain` of each measured residual, bounded by max_offset_mm) and
+// process() commands every path shifted by minus the estimate (ProcessOptions::cell_bias_mm).
+// Tests: tests/process/test_compensation.cpp; `fettle-sim trial` prints the estimate per casting.
+#include <cstddef>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "fettle/config/cell.hpp"
+#include "fettle/core/geometry.hpp"
+#include "fettle/core/result.hpp"
+#include "fettle/core/trajectory.hpp"
+#include "fettle/process/pipeline.hpp"
+
+namespace fettle::process {
+
+/// Where the tool cut against where it was told to cut, from one cycle's re-scan (base frame).
+struct CutOffset {
+  Vec3 offset_mm = Vec3::Zero();  ///< along the observed directions; 0 along the others
+  /// Projector onto the directions the cut surfaces fix (their normals span them with at least
+  /// min_points points' weight): identity when all three are, 0 when none is.
+  Eigen::Matrix3d observed = Eigen::Matrix3d::Zero();
+  Vec3 std_mm = Vec3::Zero();     ///< 1-sigma of offset_mm per base axis (0 where unobserved)
+  std::size_t points = 0;         ///< re-scan points on cut surfaces that carry the fit
+  double rms_mm = 0.0;            ///< their residual to the fitted tool surface
+  [[nodiscard]] int observed_directions() const;
+  /// "(x, y, z) mm +- (sx, sy, sz) from N cut-surface points, k of 3 directions observed"
+  [[nodiscard]] std::string describe() const;
+};
+
+struct CutOffsetSettings {
+  /// Re-scan points farther than this from the commanded tool surface are not on a cut (must
+  /// exceed the largest offset to be measured).
+  double band_mm = 1.0;
+  /// Only re-scan points at least this far below the first scan's surface (highest point of
+  /// the same base-frame x-y cell of column_mm): material was removed there, the tool cut it.
+  /// A surface the tool passed by at its allowance is left out: it lies where it was, not on
+  /// the tool. Above the scanner's depth noise.
+  double removed_min_mm = 0.15;
+  double column_mm = 0.6;
+  std::size_t min_points = 50;  ///< a direction needs this many points' weight to be observed
+};
+
+/// The cell's offset measured on the surfaces the tool cut in this cycle. `before`: the cycle's
+/// first inspection (where material was); `ground`: the trajectories as commanded (with the
+/// bias correction they were sent with); `after`: the verification of the re-scan. An error
+/// (code "compensation.no_cut") when no cut surface was seen; cone tools are not measured.
+Result<CutOffset> measure_cut_offset(const LoadedRecipe& recipe, const vision::Inspection& before,
+                                     const std::vector<Trajectory>& ground, const VerificationResult& after,
+                                     const CutOffsetSettings& settings = {});
+
+/// The cell's learned bias: where its tool cuts minus where it is told to (base frame).
+struct CellBias {
+  Vec3 bias_mm = Vec3::Zero();
+  std::size_t updates = 0;        ///< cycles that contributed since the last reset
+  std::string calibration_id;     ///< the calibration it was learned under (reset when it changes)
+  std::string tools_id;           ///< the tools it was learned with (reset when they change)
+
+  /// Moves the estimate by gain x (measured - estimate) along the measurement's observed
+  /// directions, bounded to max_offset_mm; returns the step taken.
+  Vec3 update(const CutOffset& measured, const config::CompensationSection& settings);
+  void reset() { *this = CellBias{}; }
+  [[nodiscard]] std::string describe() const;  ///< "(x, y, z) mm after N cycles"
+};
+
+/// The state file: JSON {"bias_mm": [x, y, z], "updates": n, "calibration_id", "tools_id"}.
+/// load_cell_bias() returns a zero bias when the file does not exist; a file it cannot read is
+/// an Error naming it (the caller starts from zero and says so).
+Result<CellBias> load_cell_bias(const std::filesystem::path& file);
+Status save_cell_bias(const std::filesystem::path& file, const CellBias& bias);
+/// Where the cell keeps it: [compensation] state_file, else <state_dir>/compensation.json.
+std::filesystem::path cell_bias_file(const config::CellConfig& cell);
+/// A short identity of a recipe's tools (name, shape, size, TCP): fettled resets the learned
+/// bias when the tools change (as it does when the calibration's sha256 changes).
+std::string tools_identity(const config::PartRecipe& recipe);
+
+}  // namespace fettle::process

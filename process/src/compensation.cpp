@@ -1,0 +1,348 @@
+// The cell learns its own bias (fettle/process/compensation.hpp says how).
+#include "fettle/process/compensation.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <fstream>
+#include <functional>
+#include <optional>
+#include <sstream>
+#include <unordered_map>
+
+#include <Eigen/Eigenvalues>
+#include <nlohmann/json.hpp>
+
+#include "fettle/config/roi.hpp"
+#include "fettle/core/atomic_file.hpp"
+#include "fettle/planning/planner.hpp"
+
+namespace fettle::process {
+
+namespace {
+
+/// One tool pose of the commanded paths: a ball (centre, radius) or a capped cylinder (its end
+/// face centre `tip`, axis towards the flange, radius, length).
+struct ToolPose {
+  Vec3 tip, axis;
+  double radius = 0.0, length = 0.0;
+  bool ball = false;
+
+  /// Signed distance of q to the tool's surface (< 0 inside) and the surface's outward normal
+  /// at the nearest place.
+  [[nodiscard]] double distance(const Vec3& q, Vec3& normal) const {
+    if (ball) {
+      const Vec3 d = q - tip;
+      const double n = d.norm();
+      normal = n > 1e-12 ? Vec3(d / n) : Vec3(-axis);
+      return n - radius;
+    }
+    const Vec3 d = q - tip;
+    const double s = axis.dot(d);
+    const Vec3 radial = d - s * axis;
+    const double rho = radial.norm();
+    const Vec3 rdir = rho > 1e-12 ? Vec3(radial / rho) : Vec3::Zero();
+    const double dx = rho - radius;
+    const double half = 0.5 * length;
+    const double dz = std::abs(s - half) - half;
+    const Vec3 zdir = s < half ? Vec3(-axis) : axis;
+    if (dx > 0.0 && dz > 0.0) {
+      const double out = std::hypot(dx, dz);
+      normal = (dx * rdir + dz * zdir) / out;
+      return out;
+    }
+    if (dx > dz) {
+      normal = rdir;
+      return dx;
+    }
+    normal = zdir;
+    return dz;
+  }
+};
+
+/// Integer grid cells packed into one key (21 bits an axis).
+std::int64_t cell_key(std::int64_t x, std::int64_t y, std::int64_t z) {
+  return ((x & 0x1FFFFF) << 42) | ((y & 0x1FFFFF) << 21) | (z & 0x1FFFFF);
+}
+
+/// The commanded tool poses (every pose and every sample of the moves between them, as the
+/// verification sweeps them), by the grid cells their bounding boxes, grown by `grow`, overlap.
+class ToolIndex {
+ public:
+  ToolIndex(std::vector<ToolPose> poses, double cell, double grow) : poses_(std::move(poses)), cell_(cell) {
+    for (std::size_t i = 0; i < poses_.size(); ++i) {
+      const auto& t = poses_[i];
+      const Vec3 a = t.tip, b = t.ball ? t.tip : Vec3(t.tip + t.length * t.axis);
+      const Vec3 lo = a.cwiseMin(b) - Vec3::Constant(t.radius + grow);
+      const Vec3 hi = a.cwiseMax(b) + Vec3::Constant(t.radius + grow);
+      const auto l = coords(lo), h = coords(hi);
+      for (auto z = l[2]; z <= h[2]; ++z)
+        for (auto y = l[1]; y <= h[1]; ++y)
+          for (auto x = l[0]; x <= h[0]; ++x) cells_[cell_key(x, y, z)].push_back(i);
+    }
+  }
+  /// The smallest signed distance of q to any pose's tool, with that tool's normal; false when
+  /// no pose is near.
+  bool nearest(const Vec3& q, double& sd, Vec3& normal) const {
+    const auto c = coords(q);
+    const auto it = cells_.find(cell_key(c[0], c[1], c[2]));
+    if (it == cells_.end()) return false;
+    bool found = false;
+    Vec3 n;
+    for (auto i : it->second) {
+      const double d = poses_[i].distance(q, n);
+      if (!found || d < sd) sd = d, normal = n, found = true;
+    }
+    return found;
+  }
+  [[nodiscard]] bool empty() const { return poses_.empty(); }
+
+ private:
+  [[nodiscard]] std::array<std::int64_t, 3> coords(const Vec3& p) const {
+    return {static_cast<std::int64_t>(std::floor(p.x() / cell_)), static_cast<std::int64_t>(std::floor(p.y() / cell_)),
+            static_cast<std::int64_t>(std::floor(p.z() / cell_))};
+  }
+  std::vector<ToolPose> poses_;
+  double cell_;
+  std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
+};
+
+std::vector<ToolPose> commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground) {
+  const auto& recipe = loaded.recipe;
+  std::vector<ToolPose> out;
+  for (const auto& traj : ground)
+    for (std::size_t i = 0; i < traj.points.size(); ++i) {
+      const auto& p = traj.points[i];
+      if (p.kind == MoveKind::air) continue;  // air moves cut nothing
+      const std::string name = traj.region_of(p);
+      const auto it = std::find_if(recipe.regions.begin(), recipe.regions.end(),
+                                   [&](const config::Region& r) { return r.name == name; });
+      if (it == recipe.regions.end()) continue;
+      const auto& tool = loaded.tool_for(*it);
+      if (tool.shape == config::ToolShape::cone) continue;  // not measured (the header says so)
+      auto add = [&](const Pose& m) {
+        const Transform T = m.to_transform();
+        ToolPose t;
+        t.axis = T.linear().col(2);
+        t.radius = 0.5 * tool.diameter_mm;
+        t.ball = tool.shape == config::ToolShape::ball;
+        t.tip = t.ball ? Vec3(T.translation() + t.radius * t.axis) : Vec3(T.translation());
+        t.length = std::max(0.0, tool.length_mm);
+        out.push_back(t);
+      };
+      if (i > 0 && traj.points[i - 1].kind != MoveKind::air)
+        planning::for_each_move_sample(traj.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {
+          add(m);
+          return true;
+        });
+      add(p.T_base_tool);
+    }
+  return out;
+}
+
+/// The first scan's surface as seen from above: the highest point of each base-frame x-y cell.
+/// Where the re-scan lies clearly below it, material was removed: the tool cut there (it did
+/// not only pass by a surface it left as it was).
+class HeightColumns {
+ public:
+  HeightColumns(const vision::Inspection& before, double cell) : cell_(cell) {
+    const Eigen::Isometry3f T = before.whole.T_scene_template.cast<float>();
+    for (const auto& p : before.scene_part.points) {
+      const Eigen::Vector3f b = T * p;
+      const auto k = key(b.x(), b.y());
+      const auto it = top_.find(k);
+      if (it == top_.end()) top_.emplace(k, b.z());
+      else it->second = std::max(it->second, b.z());
+    }
+  }
+  /// How far the first scan's surface stood above q (nullopt: the first scan saw nothing there).
+  [[nodiscard]] std::optional<double> removed_above(const Vec3& q) const {
+    const auto it = top_.find(key(q.x(), q.y()));
+    if (it == top_.end()) return std::nullopt;
+    return static_cast<double>(it->second) - q.z();
+  }
+  [[nodiscard]] bool empty() const { return top_.empty(); }
+
+ private:
+  [[nodiscard]] std::int64_t key(double x, double y) const {
+    const auto cx = static_cast<std::int64_t>(std::floor(x / cell_));
+    const auto cy = static_cast<std::int64_t>(std::floor(y / cell_));
+    return (cx << 32) ^ (cy & 0xFFFFFFFF);
+  }
+  double cell_;
+  std::unordered_map<std::int64_t, float> top_;
+};
+
+struct Sample {
+  double sd;
+  Vec3 n;
+};
+
+std::string fmt3(const Vec3& v, int precision) {
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "(%.*f, %.*f, %.*f)", precision, v.x(), precision, v.y(), precision, v.z());
+  return buf;
+}
+
+}  // namespace
+
+int CutOffset::observed_directions() const { return static_cast<int>(std::lround(observed.trace())); }
+
+std::string CutOffset::describe() const {
+  return fmt3(offset_mm, 3) + " mm +- " + fmt3(std_mm, 3) + " from " + std::to_string(points) + " cut-surface points, " +
+         std::to_string(observed_directions()) + " of 3 directions observed";
+}
+
+Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::Inspection& before,
+                                     const std::vector<Trajectory>& ground, const VerificationResult& after,
+                                     const CutOffsetSettings& settings) {
+  const ToolIndex tools(commanded_tools(loaded, ground), 8.0, settings.band_mm);
+  const HeightColumns first_scan(before, settings.column_mm);
+  if (tools.empty() || first_scan.empty())
+    return Error{"compensation.no_cut", "no cut to measure: " +
+                                            std::string(tools.empty() ? "no grinding pose" : "no first scan") +
+                                            " in this cycle"};
+  // The re-scanned ROI points (base frame) near the commanded tool surface, where material was
+  // removed.
+  std::vector<Sample> samples;
+  for (const auto& r : after.regions) {
+    const Eigen::Isometry3d T = r.T_base_region;
+    for (const auto& p : r.roi_points_part) {
+      const Vec3 q = T * p.cast<double>();
+      const auto removed = first_scan.removed_above(q);
+      if (!removed || *removed < settings.removed_min_mm) continue;
+      Sample s{};
+      if (!tools.nearest(q, s.sd, s.n) || std::abs(s.sd) > settings.band_mm) continue;
+      samples.push_back(s);
+    }
+  }
+  if (samples.size() < settings.min_points)
+    return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(samples.size()) +
+                                            " re-scanned points near the commanded tool surface where material was "
+                                            "removed (at least " + std::to_string(settings.min_points) + ")"};
+  // Robust least squares sd_i = n_i . b: points off the fit by more than a shrinking gate are
+  // left out (material the tool did not reach, a neighbouring surface it passed by), the rest
+  // weighted by Huber's rule.
+  CutOffset out;
+  Vec3 b = Vec3::Zero();
+  Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+  double sigma = 0.0, wsum = 0.0;
+  std::size_t used = 0;
+  constexpr double kHuberMm = 0.05;
+  for (const double gate : {settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15}) {
+    N.setZero();
+    Vec3 g = Vec3::Zero();
+    double e2 = 0.0;
+    wsum = 0.0;
+    used = 0;
+    for (const auto& s : samples) {
+      const double e = s.sd - s.n.dot(b);
+      if (std::abs(e) > gate) continue;
+      const double w = std::abs(e) <= kHuberMm ? 1.0 : kHuberMm / std::abs(e);
+      N += w * s.n * s.n.transpose();
+      g += w * s.sd * s.n;
+      e2 += w * e * e;
+      wsum += w;
+      ++used;
+    }
+    if (used < settings.min_points) break;
+    sigma = std::sqrt(e2 / wsum);
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(N);
+    b.setZero();
+    P.setZero();
+    for (int k = 0; k < 3; ++k) {
+      const double lambda = eig.eigenvalues()(k);
+      if (!(lambda >= static_cast<double>(settings.min_points))) continue;
+      const Vec3 v = eig.eigenvectors().col(k);
+      b += (v.dot(g) / lambda) * v;
+      P += v * v.transpose();
+    }
+  }
+  if (used < settings.min_points || P.trace() < 0.5)
+    return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(used) +
+                                            " re-scanned points lie on the commanded tool surface (at least " +
+                                            std::to_string(settings.min_points) + " along one direction)"};
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(N);
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < 3; ++k) {
+    const double lambda = eig.eigenvalues()(k);
+    if (!(lambda >= static_cast<double>(settings.min_points))) continue;
+    const Vec3 v = eig.eigenvectors().col(k);
+    cov += (sigma * sigma / lambda) * v * v.transpose();
+  }
+  out.offset_mm = b;
+  out.observed = P;
+  out.std_mm = cov.diagonal().cwiseMax(0.0).cwiseSqrt();
+  out.points = used;
+  out.rms_mm = sigma;
+  return out;
+}
+
+Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSection& settings) {
+  const Vec3 before = bias_mm;
+  // the measurement is the cell's whole offset (the re-scan against the commanded path, which
+  // already had the estimate taken off): the estimate moves towards it along what it observed
+  bias_mm += settings.gain * (measured.observed * (measured.offset_mm - bias_mm));
+  if (const double n = bias_mm.norm(); n > settings.max_offset_mm && n > 0.0) bias_mm *= settings.max_offset_mm / n;
+  ++updates;
+  return bias_mm - before;
+}
+
+std::string CellBias::describe() const {
+  return fmt3(bias_mm, 3) + " mm after " + std::to_string(updates) + " cycle" + (updates == 1 ? "" : "s");
+}
+
+Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
+  std::error_code ec;
+  if (!std::filesystem::exists(file, ec)) return CellBias{};
+  std::ifstream in(file);
+  std::stringstream text;
+  text << in.rdbuf();
+  try {
+    const auto j = nlohmann::json::parse(text.str());
+    CellBias b;
+    const auto& v = j.at("bias_mm");
+    b.bias_mm = Vec3(v.at(0).get<double>(), v.at(1).get<double>(), v.at(2).get<double>());
+    if (!b.bias_mm.allFinite()) throw std::invalid_argument("bias_mm is not finite");
+    b.updates = j.value("updates", std::size_t{0});
+    b.calibration_id = j.value("calibration_id", std::string{});
+    b.tools_id = j.value("tools_id", std::string{});
+    return b;
+  } catch (const std::exception& e) {
+    return Error{"compensation.state", file.string() + ": not a compensation state file (" + e.what() + ")"};
+  }
+}
+
+Status save_cell_bias(const std::filesystem::path& file, const CellBias& bias) {
+  const nlohmann::ordered_json j = {{"bias_mm", {bias.bias_mm.x(), bias.bias_mm.y(), bias.bias_mm.z()}},
+                                    {"updates", bias.updates},
+                                    {"calibration_id", bias.calibration_id},
+                                    {"tools_id", bias.tools_id},
+                                    {"frame", "base: where the tool cuts minus where it is told to, mm"}};
+  return write_file_atomic(file, j.dump(2) + "\n");
+}
+
+std::filesystem::path cell_bias_file(const config::CellConfig& cell) {
+  return cell.compensation.state_file.empty() ? cell.cell.state_dir / "compensation.json" : cell.compensation.state_file;
+}
+
+namespace {
+std::string hex_hash(const std::string& text) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "%016zx", std::hash<std::string>{}(text));
+  return buf;
+}
+}  // namespace
+
+std::string tools_identity(const config::PartRecipe& recipe) {
+  std::ostringstream s;
+  for (const auto& t : recipe.tools)
+    s << t.name << ' ' << static_cast<int>(t.shape) << ' ' << t.diameter_mm << ' ' << t.length_mm << ' '
+      << t.cone_angle_deg << ' ' << t.tcp_mm[0] << ' ' << t.tcp_mm[1] << ' ' << t.tcp_mm[2] << ';';
+  return hex_hash(s.str());
+}
+
+}  // namespace fettle::process
