@@ -142,10 +142,12 @@ robustness: build
 # gouged deeper than gouge_depth_mm must read NOK with the gouge's place. Writes its section of
 # docs/results.md.
 BIAS_SEEDS ?= random:5
+# --no-learning: this checks the verification on castings that are all gouged; with the cell
+# learning its bias (docs/compensation.md) only the first one would be.
 accuracy-bias: build
 	rm -f $(BUILD_DIR)/accuracy-bias/summary.md
 	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \
-	  --seeds $(BIAS_SEEDS) --path-bias-mm 0 0 -0.4 --out $(BUILD_DIR)/accuracy-bias; status=$$?; \
+	  --seeds $(BIAS_SEEDS) --path-bias-mm 0 0 -0.4 --no-learning --out $(BUILD_DIR)/accuracy-bias; status=$$?; \
 	  scripts/update-results accuracy-bias $(BUILD_DIR)/accuracy-bias/summary.md && exit $$status
 
 # The vision accuracy test of issue 4 on 50 simulated castings (ctest runs it too).

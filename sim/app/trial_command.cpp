@@ -29,6 +29,7 @@
 #include "fettle/cli/cli.hpp"
 #include "fettle/core/error.hpp"
 #include "fettle/core/log.hpp"
+#include "fettle/process/compensation.hpp"
 #include "fettle/process/pipeline.hpp"
 #include "fettle/sim/errors.hpp"
 #include "fettle/vision/cloud.hpp"
@@ -57,6 +58,7 @@ struct Args {
   double golden_spacing_mm = 0.5;
   app::ScannerOptions scanner;
   bool log_level_given = false;  ///< --log-level was given: the logs as asked
+  bool no_learning = false;      ///< --no-learning: the cell does not learn its bias
 };
 
 /// Seeds drawn at run time start above this: seeds 1-50 are the tests' own, known castings,
@@ -360,6 +362,11 @@ int trial(const Args& a) {
   std::map<std::string, double> worn_mm;  // --errors: each tool's radius lost to wear so far
   json seeds_json = json::array();
   const std::size_t count = last - first + 1;
+  // The cell learns its bias from each casting's verification (fettle/process/compensation.hpp),
+  // as fettled does, unless --no-learning or [compensation] enabled = false.
+  const bool learning = cell.compensation.enabled && !a.no_learning;
+  fettle::process::CellBias cell_bias;
+  std::vector<double> bias_error_mm;  // |learned - injected path bias| per casting (--path-bias-mm)
   for (std::uint64_t seed = first; seed <= last; ++seed, ++done) {
     const auto ts = std::chrono::steady_clock::now();
     const fs::path dir = a.out / ("seed-" + std::to_string(seed));
@@ -371,7 +378,9 @@ int trial(const Args& a) {
     Casting body = casting;  // the casting without its material: where the planner should put each region
     body.remove_all_material();
     const auto first_scan = scan(casting, seed, 0);
-    auto out = fettle::process::process(loaded, cell, first_scan.views,
+    fettle::process::ProcessOptions popt;
+    popt.cell_bias_mm = learning ? cell_bias.bias_mm : fettle::Vec3::Zero();
+    auto out = fettle::process::process(loaded, cell, first_scan.views, popt,
                                        [](std::size_t, std::size_t, const std::string& step) {
                                          if (step != "done") std::fprintf(stderr, ", %s", step.c_str());
                                        });
@@ -437,6 +446,27 @@ int trial(const Args& a) {
     const auto rescan = scan(casting, seed, 100);
     std::fprintf(stderr, ", verify");
     const auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory});
+    if (ver && learning) {
+      json cj;
+      cj["bias_before_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};
+      const auto measured = fettle::process::measure_cut_offset(loaded, out->inspection, {out->trajectory}, *ver);
+      if (measured) {
+        cell_bias.update(*measured, cell.compensation);
+        cj["measured_mm"] = {measured->offset_mm.x(), measured->offset_mm.y(), measured->offset_mm.z()};
+        cj["measured_std_mm"] = {measured->std_mm.x(), measured->std_mm.y(), measured->std_mm.z()};
+        cj["points"] = measured->points;
+        cj["directions_observed"] = measured->observed_directions();
+      } else {
+        cj["not_measured"] = measured.error().message;
+      }
+      cj["bias_after_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};
+      const fettle::Vec3 injected = errors ? errors->path_bias_mm : path_bias;
+      cj["injected_path_bias_mm"] = {injected.x(), injected.y(), injected.z()};
+      cj["residual_bias_mm"] = (injected - cell_bias.bias_mm).norm();
+      if (injected.norm() > 0.0) bias_error_mm.push_back((injected - cell_bias.bias_mm).norm());
+      sj["compensation"] = cj;
+      std::fprintf(stderr, ", learned bias %s", cell_bias.describe().c_str());
+    }
     std::fprintf(stderr, ", evaluate");
     const auto pts = eval_points(recipe, rescan.captures);
     const auto golden_distance = [&](const fettle::Vec3& p) { return casting.distance_to_golden_mm(p); };
@@ -617,6 +647,22 @@ int trial(const Args& a) {
                 plan_ms.empty() ? 0.0 : plan_ms[plan_ms.size() / 2], plan_ms.empty() ? 0.0 : plan_ms.back(),
                 gouged_seeds - missed_gouges, gouged_seeds, recipe.verification.gouge_depth_mm, missed_gouges);
   report += line;
+  if (learning) {
+    std::snprintf(line, sizeof line, "the cell's learned bias: %s%s\n", cell_bias.describe().c_str(),
+                  bias_error_mm.empty() ? ""
+                                        : (", off the injected path bias by " +
+                                           [&] {
+                                             std::string v;
+                                             for (double e : bias_error_mm) {
+                                               char b[16];
+                                               std::snprintf(b, sizeof b, "%s%.3f", v.empty() ? "" : " ", e);
+                                               v += b;
+                                             }
+                                             return v;
+                                           }() + " mm after each casting")
+                                              .c_str());
+    report += line;
+  }
   if (biased)
     std::snprintf(line, sizeof line,
                   "acceptance with --path-bias-mm (every casting gouged deeper than gouge_depth_mm is NOK): %s\n",
@@ -689,6 +735,8 @@ FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common& common) {
   cmd->add_option("--out", a->out, "Output directory (seed-<n>/evaluation.json, template.ply, roi_<region>.ply)")->required();
   app::add_error_options(cmd, a->errors);
   app::add_scanner_options(cmd, a->scanner);
+  cmd->add_flag("--no-learning", a->no_learning,
+                "The cell does not learn its bias from the verification scans (as [compensation] enabled = false)");
   auto g = std::make_shared<std::pair<fs::path, fs::path>>();
   auto spacing = std::make_shared<double>(0.5);
   auto* gcmd = app.add_subcommand("golden", "Write the golden template (part frame, normals) a recipe with [template] source = \"simulator\" needs");

@@ -156,4 +156,43 @@ TEST(Trial, APathBiasGougeIsNokInTheCellsVerificationWithItsPlace) {
   if (!HasFailure()) clean(t);
 }
 
+// The cell learns its own bias (docs/compensation.md): the executed path 0.2 mm below the
+// commanded one over six castings. The first casting is gouged; each verification measures where
+// the tool cut, the estimate converges on that offset (printed per casting) and the gouges
+// shrink. Seen from above, the pump body's cut surfaces all face up: the estimate is vertical,
+// nothing is guessed sideways. At the demo's 1032 x 772.
+TEST(Trial, TheCellLearnsAPathBiasFromItsVerificationsAndTheGougesShrink) {
+  const auto t = run_trial("4-9", "--path-bias-mm 0 0 -0.2 --width 1032");
+  ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
+  std::vector<nlohmann::json> ground;  // castings planned, ground and verified, in order
+  for (const auto& s : t.summary.at("seed_results"))
+    if (s.contains("compensation")) ground.push_back(s);
+  ASSERT_GE(ground.size(), 5U) << t.log;
+  EXPECT_NE(t.log.find("learned bias"), std::string::npos) << "the estimate is printed per casting\n" << t.log;
+  const auto z = [](const nlohmann::json& v) { return v.at(2).get<double>(); };
+  const auto& first = ground.front().at("compensation");
+  EXPECT_NEAR(z(first.at("bias_before_mm")), 0.0, 1e-12) << "it starts from zero";
+  // the measurement is the cell's whole offset, commanded correction or not
+  for (const auto& s : ground) {
+    const auto& c = s.at("compensation");
+    ASSERT_TRUE(c.contains("measured_mm")) << c.dump() << "\n" << t.log;
+    EXPECT_LT(z(c.at("measured_mm")), -0.15) << c.dump();
+    EXPECT_EQ(c.at("directions_observed").get<int>(), 1) << c.dump();
+  }
+  // after five castings the estimate is within a third of the offset the cell really has
+  const auto& fifth = ground[4].at("compensation");
+  const double learned = z(fifth.at("bias_after_mm")), measured = z(fifth.at("measured_mm"));
+  EXPECT_LT(std::abs(learned - measured), std::abs(measured) / 3.0) << fifth.dump() << "\n" << t.log;
+  EXPECT_LT(std::abs(-0.2 - learned), 0.2 / 3.0 + 0.08) << "the path noise's envelope adds a few hundredths\n"
+                                                         << fifth.dump();
+  const auto& last = ground.back().at("compensation").at("bias_after_mm");
+  EXPECT_LT(std::abs(last.at(0).get<double>()) + std::abs(last.at(1).get<double>()), 0.01) << last.dump();
+  // the gouges shrink: the first casting's is the deepest, the later ones are within the acceptance
+  const double g0 = ground.front().at("max_gouge_depth_mm").get<double>();
+  EXPECT_GT(g0, 0.15) << "0.2 mm down gouges the first casting\n" << t.log;
+  for (std::size_t k = 2; k < ground.size(); ++k)
+    EXPECT_LT(ground[k].at("max_gouge_depth_mm").get<double>(), 0.1) << "casting " << k + 1 << "\n" << t.log;
+  if (!HasFailure()) clean(t);
+}
+
 }  // namespace
