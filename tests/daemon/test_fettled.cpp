@@ -402,8 +402,18 @@ TEST_F(Fettled, A_ThreeCyclesWithResultsAndRecords) {
     EXPECT_EQ(sha.size(), 64U) << d.path();
     EXPECT_EQ(sha.find_first_not_of("0123456789abcdef"), std::string::npos) << sha;
     for (const auto& f : report["files"]) EXPECT_TRUE(fs::exists(d.path() / f.get<std::string>())) << d.path() << " " << f;
+    // [compensation] is on by default: each verified cycle measured where its tool cut
+    // (docs/compensation.md); the simulated cell's riser face fixes the vertical at least
+    const auto& comp = report["compensation"];
+    ASSERT_TRUE(comp.is_object()) << d.path();
+    EXPECT_GE(comp["measured"].value("directions_observed", 0), 1) << d.path() << ": " << comp.dump();
+    EXPECT_GT(comp["measured"].value("points", 0), 100) << d.path() << ": " << comp.dump();
   }
   EXPECT_EQ(records, 3U);
+  // the estimate outlives the daemon: three cycles in the state file, under this calibration
+  const auto state = nlohmann::json::parse(read_text(dir_ / "state/compensation.json"));
+  EXPECT_EQ(state.value("updates", 0), 3) << state.dump();
+  EXPECT_EQ(state.value("calibration_id", "").size(), 64U) << state.dump();
 }
 
 /// One fault scenario: what to do to the cell, the fault code and the state it must end in.

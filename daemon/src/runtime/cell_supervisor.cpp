@@ -34,6 +34,7 @@ void Runtime::Impl::setup() {
     recipes[r.plc_recipe_id] = processing->load_recipe(r.file);
   }
   if (!cell.calibration.file.empty()) calibration = config::load_calibration(cell.calibration.file);
+  load_cell_bias();
   auto interrupted = records.open();
   if (!interrupted) throw UserError(interrupted.error().message);
   for (const auto& id : *interrupted) log->warn("cycle {} shows as INTERRUPTED (the daemon stopped during it)", id);

@@ -218,6 +218,19 @@ void Runtime::Impl::record_cycle(Cycle& c) {
   report["regrinds"] = c.regrinds.size();
   if (c.first_verification) report["first_verification"] = verification_json(*c.first_verification, c, "first_");
   if (c.verification) report["verification"] = verification_json(*c.verification, c, "");
+  if (cell.compensation.enabled) {
+    const auto v3 = [](const Vec3& v) { return json::array({v.x(), v.y(), v.z()}); };
+    json comp{{"frame", "base"}, {"bias_commanded_mm", v3(c.cell_bias_mm)}, {"bias_now_mm", v3(cell_bias.bias_mm)},
+              {"updates", cell_bias.updates}};
+    if (c.cut_offset && *c.cut_offset)
+      comp["measured"] = {{"offset_mm", v3((*c.cut_offset)->offset_mm)},
+                          {"std_mm", v3((*c.cut_offset)->std_mm)},
+                          {"points", (*c.cut_offset)->points},
+                          {"directions_observed", (*c.cut_offset)->observed_directions()}};
+    else if (c.cut_offset)
+      comp["not_measured"] = c.cut_offset->error().message;
+    report["compensation"] = comp;
+  }
   report["files"] = c.files;
   if (auto st = Records::write_file(s, "report.json", report.dump(2)); !st)
     log->error("cycle {}: report.json: {}", s.id, st.error().message);

@@ -257,13 +257,24 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   auto ground = std::make_shared<std::vector<Trajectory>>();
   if (c.processed) ground->push_back(c.processed->trajectory);
   for (const auto& r : c.regrinds) ground->push_back(r.trajectory);
+  // [compensation]: the first verification also measures where the tool cut against where it
+  // was told (the first inspection says where material was); the cycle's coroutine waits, so
+  // c.processed stays put while the worker reads it
+  const vision::Inspection* before =
+      cell.compensation.enabled && c.regrinds.empty() && c.processed ? &c.processed->inspection : nullptr;
+  auto offset = std::make_shared<std::optional<Result<process::CutOffset>>>();
   // named, not a temporary in the co_await expression (see process_views)
   const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
-      [this, recipe, views_copy, ground](std::function<void(Result<VerificationResult>)> done) {
-        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, done] {
+      [this, recipe, views_copy, ground, before, offset](std::function<void(Result<VerificationResult>)> done) {
+        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, before, offset, done] {
           Result<VerificationResult> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
             out = processing->verify(*recipe, cell, *views_copy, *ground);
+            if (out && before != nullptr) {
+              process::CutOffsetSettings cs;
+              cs.min_points = static_cast<std::size_t>(cell.compensation.min_points);
+              *offset = process::measure_cut_offset(*recipe, *before, *ground, *out, cs);
+            }
           } catch (const std::exception& e) {
             out = Error{"pipeline.internal", e.what(), ErrorKind::internal};
           }
@@ -280,6 +291,7 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
     fail(c, r->error(), ErrorSource::process, FaultCode::vision_failed);
     co_return std::nullopt;
   }
+  if (*offset) c.cut_offset = std::move(*offset);
   c.end();
   co_return std::move(r->value());
 }
@@ -363,7 +375,9 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     co_return;
   }
   if (!co_await scan(c, c.views, "capture")) co_return;
-  const ProcessOptions all_regions;
+  ProcessOptions all_regions;
+  if (cell.compensation.enabled) c.cell_bias_mm = cell_bias.bias_mm;
+  all_regions.cell_bias_mm = c.cell_bias_mm;
   auto processed = co_await process_views(c, c.views, all_regions, "process");
   if (!processed) co_return;
   c.processed = std::move(processed);
@@ -382,9 +396,11 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
   auto v = co_await verify_views(c, rescan);
   if (!v) co_return;
   log_verification(c, *v, "verification");
+  learn_bias(c);
   if (v->verdict == Verdict::regrind) {
     ProcessOptions po;
     po.regions = v->regrind_regions();
+    po.cell_bias_mm = c.cell_bias_mm;
     log->info("cycle {}: re-grind of {} region(s): {}", c.summary.id, po.regions.size(), fmt::join(po.regions, ", "));
     c.first_verification = std::move(v);
     std::string not_planned;

@@ -37,6 +37,7 @@
 #include "fettle/drivers/plc_link.hpp"
 #include "fettle/drivers/robot_link.hpp"
 #include "fettle/drivers/spindle.hpp"
+#include "fettle/process/compensation.hpp"
 #include "fettle/process/pipeline.hpp"
 
 namespace fettle::daemon {
@@ -101,6 +102,10 @@ struct Cycle {
   std::vector<ProcessOutput> regrinds;
   std::optional<VerificationResult> verification;
   std::optional<VerificationResult> first_verification;
+  /// [compensation]: the bias this cycle's paths were commanded with, and what its first
+  /// verification measured of where the tool cut (report.json "compensation").
+  Vec3 cell_bias_mm = Vec3::Zero();
+  std::optional<Result<process::CutOffset>> cut_offset;
   std::string result;  ///< "OK" / "NOK" when no fault
   json files = json::array();
   std::vector<std::string> warnings;
@@ -144,6 +149,7 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
 
   std::map<int, std::shared_ptr<const LoadedRecipe>> recipes;
   std::optional<config::CalibrationFile> calibration;
+  process::CellBias cell_bias;  ///< [compensation]: the cell's learned bias (docs/compensation.md)
 
   // The devices, only through their interfaces (device.hpp), made by RuntimeOptions' makers
   // or as the cell file says.
@@ -231,6 +237,12 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   asio::awaitable<bool> grind(Cycle& c, const Trajectory& trajectory, const std::string& suffix);
   /// One line per region: what the maintenance engineer needs to see why a part is NOK.
   void log_verification(const Cycle& c, const VerificationResult& v, const char* what);
+  /// [compensation] (compensation.cpp): the learned bias at start (reset when the calibration
+  /// or the tools changed), and its update from a cycle's measured cut offset.
+  void load_cell_bias();
+  void learn_bias(Cycle& c);
+  [[nodiscard]] std::string bias_identity_calibration() const;
+  [[nodiscard]] std::string bias_identity_tools() const;
   asio::awaitable<void> sleep(milliseconds d);
 
   // --- cycle_record.cpp ---------------------------------------------------------------------
