@@ -137,6 +137,38 @@ TEST(Locate, ASceneWithoutTheObjectIsAFailureNotAWrongSuccess) {
   EXPECT_EQ(r.error().code, "vision.no_match");
 }
 
+// A template of ten points (or a PCD whose 8-bit coordinates collapse it to a few voxels) has
+// no FPFH features: locate() refuses it with the count, it does not read features that are not
+// there (issue 40, item 1).
+TEST(Locate, ATemplateOfTenPointsIsRefusedNotACrash) {
+  const Cloud milk = load_cloud(test::data("milk.pcd"));
+  for (const std::size_t n : {10U, 12U, 40U}) {
+    Cloud tiny;
+    for (std::size_t i = 0; i < n; ++i) tiny.points.push_back(milk.points[i * (milk.size() / n)]);
+    const auto r = locate(tiny, milk, {});
+    if (r) continue;  // a few points may still fit somewhere: not a crash is what counts here
+    EXPECT_FALSE(r.error().message.empty());
+  }
+  // prepared directly with 3 or 4 coarse points: no coarse point without its feature
+  for (const std::size_t n : {3U, 4U}) {
+    Cloud few;
+    for (std::size_t i = 0; i < n; ++i) few.points.emplace_back(static_cast<float>(10 * i), static_cast<float>(i % 2), 0.0f);
+    PrepareSettings ps;
+    ps.coarse_voxel = 1.0;
+    ps.feature_radius = 50.0;
+    const auto p = PreparedCloud::prepare(few, ps);
+    EXPECT_EQ(p.coarse().size(), 0U) << n << " points";
+    const auto r = coarse_align(p, p, {});
+    ASSERT_FALSE(r.ok());
+    EXPECT_EQ(r.error().code, "vision.too_few_points");
+  }
+  Cloud nine;
+  for (int i = 0; i < 9; ++i) nine.points.emplace_back(static_cast<float>(i), 0.0f, 0.0f);
+  const auto r = locate(nine, milk, {});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.error().message.find("the template has 9 valid points"), std::string::npos) << r.error().message;
+}
+
 TEST(PreparedCloud, CacheRoundTripGivesTheSameRegistration) {
   const Cloud milk_m = load_cloud(test::data("milk.pcd"));
   const Cloud milk = transformed(milk_m, Transform(Eigen::Scaling(1000.0)));

@@ -114,6 +114,11 @@ PreparedCloud PreparedCloud::prepare(const Cloud& fine, const PrepareSettings& s
       impl->features->push_back(features[i]);
     }
     impl->coarse = std::move(kept);
+  } else {
+    // Fewer than 5 points carry no FPFH feature: no coarse points either, so that every coarse
+    // point has its feature (coarse_align reads them by index; test
+    // Locate.ATemplateOfTenPointsIsRefusedNotACrash).
+    impl->coarse = Cloud{};
   }
   impl->build_trees();
   return PreparedCloud(std::move(impl));
@@ -286,6 +291,11 @@ Registration evaluate(const Cloud& templ, const Cloud& scene, const Transform& T
 Result<Registration> coarse_align(const PreparedCloud& templ, const PreparedCloud& scene, const CoarseSettings& settings) {
   const auto& T = templ.impl();
   const auto& S = scene.impl();
+  if (T.features->size() != T.coarse.size() || S.features->size() != S.coarse.size())
+    return Error{"vision.too_few_points", "coarse alignment needs a feature for every coarse point (template " +
+                                              std::to_string(T.features->size()) + " of " + std::to_string(T.coarse.size()) +
+                                              ", scene " + std::to_string(S.features->size()) + " of " +
+                                              std::to_string(S.coarse.size()) + ")"};
   if (T.coarse.size() < 3 || S.coarse.size() < 3)
     return Error{"vision.too_few_points", "coarse alignment needs at least 3 points with features in the template (has " +
                                               std::to_string(T.coarse.size()) + ") and the scene (has " +
@@ -707,8 +717,10 @@ Result<Registration> refine(const PreparedCloud& templ, const Cloud& scene, cons
 }
 
 Result<Registration> locate(const Cloud& templ, const Cloud& scene, const LocateSettings& settings) {
-  if (templ.size() < 10) return Error{"vision.too_few_points", "the template has fewer than 10 valid points"};
-  if (scene.size() < 10) return Error{"vision.too_few_points", "the scene has fewer than 10 valid points"};
+  if (templ.size() < 10)
+    return Error{"vision.too_few_points", "the template has " + std::to_string(templ.size()) + " valid points (at least 10)"};
+  if (scene.size() < 10)
+    return Error{"vision.too_few_points", "the scene has " + std::to_string(scene.size()) + " valid points (at least 10)"};
   {
     // Any unit works, but both clouds must share it: a template far larger than the scene (or a
     // scene a thousand times larger) means millimetres against metres.
