@@ -54,12 +54,10 @@ std::string where_xy(double x, double y) { return "(" + fmt(x) + ", " + fmt(y) +
 /// The region tables are read (with their own checks) by the part loader; here the file
 /// is parsed again only to point at the offending line.
 void check_regions(TableReader& root, const PartGeometry& g, const std::vector<std::pair<std::string, std::string>>& links) {
-  toml::table doc;
-  try {
-    doc = toml::parse_file(root.report().file());
-  } catch (const std::exception&) {
-    return;  // the loader reports syntax errors
-  }
+  detail::Report again(root.report().file());
+  auto parsed = detail::parse_file(root.report().file(), again);
+  if (!parsed) return;  // the loader reports syntax errors
+  const toml::table& doc = *parsed;
   double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300, z1 = 0.0;
   auto grow = [&](double ax, double ay, double bx, double by, double top) {
     x0 = std::min(x0, ax), y0 = std::min(y0, ay), x1 = std::max(x1, bx), y1 = std::max(y1, by);

@@ -250,11 +250,10 @@ ErrorBudget load_error_budget(const std::filesystem::path& file) {
 std::vector<Diagnostic> check_file(const std::filesystem::path& file, FileKind kind) {
   if (kind == FileKind::automatic) {
     kind = FileKind::cell;
-    try {
-      if (toml::parse_file(file.string()).contains("part")) kind = FileKind::part;
-    } catch (const std::exception&) {
-      // Syntax errors and missing files are reported by the reader below.
-    }
+    // through the reader's own checks (a FIFO, a huge or too deeply nested file is refused, not
+    // parsed); its problems are reported by the reader below
+    detail::Report probe(file);
+    if (const auto doc = detail::parse_file(file, probe); doc && doc->contains("part")) kind = FileKind::part;
   }
   if (kind == FileKind::part) {
     PartRecipe part;

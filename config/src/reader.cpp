@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <fstream>
+#include <iterator>
 #include <sstream>
 
 namespace fettle::config {
@@ -95,14 +97,100 @@ std::string describe(const toml::node& node) {
   }
 }
 
+std::optional<NestingProblem> too_deeply_nested(std::string_view text, int limit) {
+  int line = 1, column = 0;
+  std::vector<char> brackets;  // open [ and { (arrays and inline tables, headers too)
+  bool key = true;             // in a key: a line's start outside brackets, after { or , in an inline table
+  bool header = false;         // in a [table] or [[array]] header
+  int dots = 0;                // dotted parts so far in this key or header
+  for (std::size_t i = 0; i < text.size(); ++i) {
+    const char ch = text[i];
+    ++column;
+    if (ch == '\n') {
+      ++line, column = 0;
+      key = brackets.empty();
+      header = false;
+      dots = 0;
+      continue;
+    }
+    if (ch == '#') {  // comment to the end of the line
+      while (i + 1 < text.size() && text[i + 1] != '\n') ++i;
+      continue;
+    }
+    if (ch == '"' || ch == '\'') {  // strings, multi-line ones too (""" and ''')
+      const bool multi = text.substr(i, 3) == std::string(3, ch);
+      const std::string close = multi ? std::string(3, ch) : std::string(1, ch);
+      std::size_t j = i + close.size();
+      while (j < text.size() && text.substr(j, close.size()) != close) {
+        if (ch == '"' && text[j] == '\\') ++j;  // escapes in basic strings only
+        if (j < text.size() && text[j] == '\n') {
+          if (!multi) break;  // an unterminated string: the parser says so
+          ++line, column = 0;
+        }
+        ++j;
+      }
+      i = std::min(text.size(), j + close.size()) - 1;
+      continue;
+    }
+    if (ch == '[' || ch == '{') {
+      if (ch == '[' && key && brackets.empty()) header = true, dots = 0;
+      brackets.push_back(ch);
+      if (static_cast<int>(brackets.size()) > limit)
+        return NestingProblem{line, column, "arrays and inline tables nested deeper than " + std::to_string(limit)};
+      key = ch == '{';
+      continue;
+    }
+    if (ch == ']' || ch == '}') {
+      if (!brackets.empty()) brackets.pop_back();
+      if (header && brackets.empty()) header = false;
+      key = false;
+      continue;
+    }
+    if (ch == ',' && !brackets.empty() && brackets.back() == '{') {
+      key = true, dots = 0;
+      continue;
+    }
+    if (ch == '=' && !header) {
+      key = false, dots = 0;
+      continue;
+    }
+    if (ch == '.' && (key || header) && ++dots + 1 > limit)
+      return NestingProblem{line, column, "a key or table header of more than " + std::to_string(limit) + " dotted parts"};
+  }
+  return std::nullopt;
+}
+
 std::optional<toml::table> parse_file(const std::filesystem::path& file, Report& report) {
   std::error_code ec;
+  // Only regular files: a FIFO or a device would block or never end (issue 40, item 4).
   if (!std::filesystem::is_regular_file(file, ec)) {
-    report.add_file(std::filesystem::exists(file, ec) ? "not a regular file" : "no such file");
+    report.add_file(std::filesystem::exists(file, ec) ? "not a regular file (a FIFO, device or directory?): " +
+                                                            file.string()
+                                                      : "no such file");
+    return std::nullopt;
+  }
+  if (const auto size = std::filesystem::file_size(file, ec); !ec && size > kMaxConfigBytes) {
+    report.add_file("is " + std::to_string(size) + " bytes: a configuration file is at most " +
+                    std::to_string(kMaxConfigBytes) + " bytes");
+    return std::nullopt;
+  }
+  std::ifstream in(file, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!in && !in.eof()) {
+    report.add_file("cannot be read");
+    return std::nullopt;
+  }
+  // The parser recurses per level: a header of 50 000 dotted parts overflows the stack, so the
+  // depth is checked on the text first (docs/security.md; test ConfigHostile.*).
+  if (const auto deep = too_deeply_nested(text, kMaxNesting)) {
+    report.add(toml::source_region{{static_cast<toml::source_index>(deep->line), static_cast<toml::source_index>(deep->column)},
+                                   {},
+                                   {}},
+               "", deep->what + ": refused before parsing");
     return std::nullopt;
   }
   try {
-    return toml::parse_file(file.string());
+    return toml::parse(text, file.string());
   } catch (const toml::parse_error& e) {
     report.add(e.source(), "", "TOML syntax error: " + std::string(e.description()));
     return std::nullopt;

@@ -5,6 +5,7 @@
 // not read is reported as unknown (with a "did you mean" hint). Every error names
 // file:line:column, the key, the bad value and what is allowed.
 #include <array>
+#include <cstdint>
 #include <filesystem>
 #include <functional>
 #include <initializer_list>
@@ -116,7 +117,21 @@ class TableReader {
 /// Describes a node's value for an error message, e.g. `string "502"`.
 std::string describe(const toml::node& node);
 
-/// Parses a file; on a syntax error, records it and returns nullopt.
+/// Limits on what a configuration file may be (docs/security.md): its size, and how deep keys
+/// (dotted parts) and arrays / inline tables may nest.
+inline constexpr std::uintmax_t kMaxConfigBytes = 4U << 20;
+inline constexpr int kMaxNesting = 64;
+
+struct NestingProblem {
+  int line = 0, column = 0;
+  std::string what;
+};
+/// The first place a TOML text nests deeper than `limit` (dotted parts of a key or header, or
+/// open arrays and inline tables), found without parsing it; strings and comments are skipped.
+std::optional<NestingProblem> too_deeply_nested(std::string_view text, int limit);
+
+/// Parses a file; on a syntax error, records it and returns nullopt. Refuses (recorded, nullopt)
+/// anything but a regular file, files over kMaxConfigBytes and nesting beyond kMaxNesting.
 std::optional<toml::table> parse_file(const std::filesystem::path& file, Report& report);
 
 }  // namespace fettle::config::detail

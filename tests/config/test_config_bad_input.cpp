@@ -3,6 +3,7 @@
 // file (and the line where there is one), load_cell throws ConfigError, nothing crashes or hangs.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <csignal>
@@ -13,6 +14,7 @@
 
 #include "../support/child_process.hpp"
 #include "fettle/config/load.hpp"
+#include "../../config/src/reader.hpp"
 
 namespace fs = std::filesystem;
 using fettle::config::check_file;
@@ -211,6 +213,69 @@ TEST_F(ConfigBadInput, DeeplyNestedArraysAreRefusedNotAStackOverflow) {
   const auto out = fettle::test::run_in_child([&] {
     const auto f = write(replace(cell_, "[-600.0, -600.0, -20.0]", deep));
     if (check_file(f, FileKind::cell).empty()) std::_Exit(3);
+  });
+  EXPECT_EQ(out.how, fettle::test::ChildOutcome::How::returned) << out.detail;
+}
+
+// A table header of 50 000 dotted parts overflowed the TOML parser's stack (SIGSEGV, a restart
+// loop under systemd): refused on the text before parsing, with its line (issue 40, item 2;
+// docs/security.md "Limits").
+TEST_F(ConfigBadInput, AHeaderOfFiftyThousandDottedPartsIsRefusedWithItsLine) {
+  std::string header = "[a";
+  for (int i = 0; i < 50000; ++i) header += ".b";
+  header += "]\nx = 1\n";
+  const auto out = fettle::test::run_in_child([&] {
+    const auto f = write(cell_ + "\n" + header);
+    for (auto kind : {FileKind::automatic, FileKind::cell}) {
+      const auto d = check_file(f, kind);
+      if (d.empty()) std::_Exit(3);
+      if (d.front().line == 0 || d.front().message.find("dotted parts") == std::string::npos) std::_Exit(4);
+    }
+  });
+  EXPECT_EQ(out.how, fettle::test::ChildOutcome::How::returned) << out.detail;
+  // and in this process, the message
+  const auto d = problems(cell_ + "\n" + header);
+  EXPECT_THAT(all(d), HasSubstr("more than 64 dotted parts: refused before parsing")) << all(d);
+  EXPECT_GT(d.front().line, 1) << all(d);
+  // dotted keys too, and inline tables nested deeper than the limit
+  EXPECT_THAT(all(problems(cell_ + "\n[deep]\n" + std::string("k") + [] {
+                std::string s;
+                for (int i = 0; i < 100; ++i) s += ".k";
+                return s;
+              }() + " = 1\n")),
+              HasSubstr("dotted parts"));
+  std::string inl = "[deep]\nv = ";
+  for (int i = 0; i < 100; ++i) inl += "{a = ";
+  inl += "1";
+  for (int i = 0; i < 100; ++i) inl += "}";
+  EXPECT_THAT(all(problems(cell_ + "\n" + inl + "\n")), HasSubstr("nested deeper than 64"));
+}
+
+// Dots inside strings, comments and numbers are no nesting; what the limit allows parses as before.
+TEST(ConfigNesting, DotsInStringsCommentsAndValuesAreNotCounted) {
+  using fettle::config::detail::too_deeply_nested;
+  std::string many_dots(200, '.');
+  EXPECT_FALSE(too_deeply_nested("a = \"" + many_dots + "\"\n# " + many_dots + "\nb = 1.5\n'q" + many_dots + "' = 2\n", 64));
+  EXPECT_FALSE(too_deeply_nested("s = \"\"\"\n" + many_dots + "\n\"\"\"\nv = [1.5, 2.5,\n 3.5]\n", 64));
+  std::string ok = "[a";
+  for (int i = 0; i < 63; ++i) ok += ".b";
+  EXPECT_FALSE(too_deeply_nested(ok + "]\n", 64));
+  const auto deep = too_deeply_nested("x = 1\n" + ok + ".c]\n", 64);
+  ASSERT_TRUE(deep);
+  EXPECT_EQ(deep->line, 2);
+}
+
+// A FIFO given to `fettle config check` blocked forever: auto mode parsed it before the reader
+// checked the file type (issue 40, item 4). Now every mode refuses it at once, naming it.
+TEST_F(ConfigBadInput, AFifoIsRefusedNotWaitedOn) {
+  const fs::path fifo = dir_ / "cell.fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  const auto out = fettle::test::run_in_child([&] {
+    ::alarm(10);
+    for (auto kind : {FileKind::automatic, FileKind::cell, FileKind::part}) {
+      const auto d = check_file(fifo, kind);
+      if (d.empty() || d.front().message.find("not a regular file") == std::string::npos) std::_Exit(3);
+    }
   });
   EXPECT_EQ(out.how, fettle::test::ChildOutcome::How::returned) << out.detail;
 }
