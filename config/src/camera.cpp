@@ -14,7 +14,7 @@ void read_camera(TableReader& root, SlideSection& slide, CameraSection& c) {
     const bool by_address = t->has("address");
     const bool by_serial = t->has("serial");
     t->ipv4("address", c.address);
-    t->string("serial", c.serial);
+    t->ident("serial", c.serial, 64);
     if (!by_address && !by_serial) t->error("address", "set the camera's address (IPv4) or its serial number");
     if (by_address && by_serial) t->error("serial", "set either address or serial, not both");
     t->integer("frame_timeout_ms", c.frame_timeout_ms, kTimeoutMs);

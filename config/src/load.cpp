@@ -96,7 +96,13 @@ void read_cell(TableReader& root, CellConfig& cfg) {
     t->number("safe_height_mm", s.safe_height_mm, {0.0, 2000.0});
     t->number("min_clearance_mm", s.min_clearance_mm, {0.0, 10.0});
   }
-  if (auto t = root.table("control")) t->path("socket", cfg.control.socket);
+  if (auto t = root.table("control")) {
+    t->path("socket", cfg.control.socket);
+    // a Unix socket's path fits sockaddr_un's sun_path (108 bytes with its NUL)
+    if (cfg.control.socket.string().size() > 107)
+      t->error("socket", "is " + std::to_string(cfg.control.socket.string().size()) +
+                             " bytes long: a Unix socket path is at most 107 bytes");
+  }
   if (auto t = root.table("records")) {
     t->integer("keep_cycles", cfg.records.keep_cycles, {1, 10000000});
     t->number("keep_mb", cfg.records.keep_mb, {1.0, 1e9});

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cctype>
+#include <cstdio>
 #include <fstream>
 #include <iterator>
 #include <sstream>
@@ -282,7 +284,39 @@ void TableReader::string(std::string_view key, std::string& out, Need need, bool
     report_->add(node->source(), key_path(key), "must not be empty");
     return;
   }
+  // One line of text: a NUL ends it early where it meets C, a newline starts a second line
+  // where it meets a line protocol (issue 40, item 9; docs/security.md "Limits").
+  if (const auto bad = std::find_if(v->begin(), v->end(), [](char c) { return static_cast<unsigned char>(c) < 0x20 && c != '\t'; });
+      bad != v->end()) {
+    char hex[8];
+    std::snprintf(hex, sizeof hex, "0x%02x", static_cast<unsigned>(static_cast<unsigned char>(*bad)));
+    report_->add(node->source(), key_path(key),
+                 std::string("contains a control character (") + hex + " at byte " + std::to_string(bad - v->begin()) +
+                     "): a value here is one line of text");
+    return;
+  }
+  if (v->size() > kMaxStringBytes) {
+    report_->add(node->source(), key_path(key),
+                 "is " + std::to_string(v->size()) + " bytes long (at most " + std::to_string(kMaxStringBytes) + ")");
+    return;
+  }
   out = *v;
+}
+
+void TableReader::ident(std::string_view key, std::string& out, std::size_t max_chars, Need need) {
+  std::string v;
+  const std::size_t before = report_->diagnostics().size();
+  string(key, v, need);
+  if (report_->diagnostics().size() != before || v.empty()) return;
+  const bool ok = v.size() <= max_chars && std::all_of(v.begin(), v.end(), [](char c) {
+                    return std::isalnum(static_cast<unsigned char>(c)) != 0 || c == '_' || c == '-' || c == '.';
+                  });
+  if (!ok) {
+    error(key, "\"" + v + "\" is not an identifier: 1 to " + std::to_string(max_chars) +
+                   " letters, digits, '_', '-' or '.' (it goes on a wire as one token)");
+    return;
+  }
+  out = v;
 }
 
 void TableReader::choice(std::string_view key, std::string& out, const std::vector<std::string>& allowed, Need need) {
@@ -302,6 +336,11 @@ void TableReader::ipv4(std::string_view key, std::string& out, Need need) {
   if (node == nullptr) return;
   const auto v = node->value_exact<std::string>();
   if (!v) return type_error(key, *node, "an IPv4 address string such as \"192.168.10.20\"");
+  if (std::any_of(v->begin(), v->end(), [](char c) { return static_cast<unsigned char>(c) < 0x20; })) {
+    std::string ignored;
+    string(key, ignored, need);  // says which control character, and where
+    return;
+  }
   in_addr addr{};
   if (::inet_pton(AF_INET, v->c_str(), &addr) != 1) {
     report_->add(node->source(), key_path(key),
@@ -323,8 +362,18 @@ void TableReader::path(std::string_view key, std::filesystem::path& out, Need ne
   if (p.is_relative()) p = base_dir_ / p;
   p = p.lexically_normal();
   std::error_code ec;
+  if (p.string().size() > kMaxPathBytes) {
+    error(key, "is " + std::to_string(p.string().size()) + " bytes long as a path (at most " +
+                   std::to_string(kMaxPathBytes) + ")");
+    return;
+  }
   if (must_exist && !std::filesystem::exists(p, ec)) {
     error(key, "file \"" + p.string() + "\" does not exist");
+    return;
+  }
+  // a file that must exist is read: a FIFO would block, a device never end
+  if (must_exist && !std::filesystem::is_regular_file(p, ec)) {
+    error(key, "\"" + p.string() + "\" is not a regular file (a FIFO, device or directory?)");
     return;
   }
   out = p;

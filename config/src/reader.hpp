@@ -66,7 +66,10 @@ class TableReader {
   void integer(std::string_view key, int& out, Range<long long> range, Need need = Need::optional);
   void number(std::string_view key, double& out, Range<double> range, Need need = Need::optional);
   void boolean(std::string_view key, bool& out, Need need = Need::optional);
+  /// One line of text (no control character but tab), at most kMaxStringBytes.
   void string(std::string_view key, std::string& out, Need need = Need::optional, bool allow_empty = false);
+  /// A token that goes on a wire: 1 to max_chars letters, digits, '_', '-', '.'.
+  void ident(std::string_view key, std::string& out, std::size_t max_chars, Need need = Need::optional);
   /// A string that must be one of `allowed`.
   void choice(std::string_view key, std::string& out, const std::vector<std::string>& allowed,
               Need need = Need::optional);
@@ -121,6 +124,8 @@ std::string describe(const toml::node& node);
 /// (dotted parts) and arrays / inline tables may nest.
 inline constexpr std::uintmax_t kMaxConfigBytes = 4U << 20;
 inline constexpr int kMaxNesting = 64;
+inline constexpr std::size_t kMaxStringBytes = 4096;  ///< any string value
+inline constexpr std::size_t kMaxPathBytes = 4096;    ///< PATH_MAX
 
 struct NestingProblem {
   int line = 0, column = 0;

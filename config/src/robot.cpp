@@ -10,7 +10,8 @@ void read_robot(TableReader& root, RobotSection& r) {
   if (auto t = root.table("robot", Need::required)) {
     t->ipv4("address", r.address, Need::required);
     t->port("port", r.port, Need::required);
-    t->string("cell_id", r.cell_id, Need::required);
+    // the protocol's ident (docs/robot-protocol.md): one token of at most 32 characters
+    t->ident("cell_id", r.cell_id, 32, Need::required);
     t->integer("reply_timeout_ms", r.reply_timeout_ms, kTimeoutMs);
     t->integer("ping_period_ms", r.ping_period_ms, {10, 60000});
     t->integer("missed_pings", r.missed_pings, {1, 100});

@@ -7,7 +7,8 @@ namespace fettle::config::detail {
 void read_spindle(TableReader& root, SpindleSection& s) {
   if (auto t = root.table("spindle", Need::required)) {
     t->choice("transport", s.transport, {"socketcan", "socketcand", "sim"});
-    t->string("interface", s.interface);
+    // a Linux interface name (IFNAMSIZ), sent to socketcand as one token
+    t->ident("interface", s.interface, 15);
     t->ipv4("address", s.address);
     t->port("port", s.port);
     t->integer("node_id", s.node_id, {1, 127});

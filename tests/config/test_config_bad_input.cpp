@@ -279,3 +279,33 @@ TEST_F(ConfigBadInput, AFifoIsRefusedNotWaitedOn) {
   });
   EXPECT_EQ(out.how, fettle::test::ChildOutcome::How::returned) << out.detail;
 }
+
+// A newline in [robot] cell_id made fettled send a second, injected protocol line; 200
+// characters broke the protocol's limits; a NUL inside an address, a FIFO or /dev/zero as the
+// calibration file and a 300-byte socket path passed the check and failed only at start
+// (issue 40, item 9). Every string that goes on a wire is one token, every file read a regular
+// file, every path of a sane length.
+TEST_F(ConfigBadInput, StringsOnAWireAndPathsAreCheckedNotJustTheirType) {
+  EXPECT_THAT(all(problems(replace(cell_, "cell_id = \"sim-cell\"", "cell_id = \"a\\n2 RUN 1 3000\""))),
+              HasSubstr("control character (0x0a at byte 1)"));
+  EXPECT_THAT(all(problems(replace(cell_, "cell_id = \"sim-cell\"", "cell_id = \"" + std::string(200, 'x') + "\""))),
+              HasSubstr("is not an identifier: 1 to 32"));
+  EXPECT_THAT(all(problems(replace(cell_, "cell_id = \"sim-cell\"", "cell_id = \"two words\""))),
+              HasSubstr("robot.cell_id"));
+  EXPECT_THAT(all(problems(replace(cell_, "address = \"127.0.0.1\"", "address = \"127.0.0.1\\u0000junk\""))),
+              HasSubstr("control character (0x00"));
+  const fs::path fifo = dir_ / "cal.fifo";
+  ASSERT_EQ(::mkfifo(fifo.c_str(), 0600), 0);
+  for (const std::string& bad : {fifo.string(), std::string("/dev/zero")}) {
+    const auto text = replace(cell_, (kConfigDir / "calibration.sim.toml").string(), bad);
+    const auto out = fettle::test::run_in_child([&] {
+      ::alarm(10);
+      const auto d = check_file(write(text), FileKind::cell);
+      if (d.empty() || all(d).find("is not a regular file") == std::string::npos) std::_Exit(3);
+    });
+    EXPECT_EQ(out.how, fettle::test::ChildOutcome::How::returned) << bad << ": " << out.detail;
+  }
+  EXPECT_THAT(all(problems(replace(cell_, "socket = \"../var/fettle/fettled.sock\"",
+                                   "socket = \"/run/" + std::string(300, 's') + ".sock\""))),
+              HasSubstr("a Unix socket path is at most 107 bytes"));
+}
