@@ -4,9 +4,12 @@
 #include <systemd/sd-journal.h>
 
 #include <algorithm>
+#include <cctype>
+#include <chrono>
 #include <cstdlib>
 #include <mutex>
 #include <stdexcept>
+#include <unordered_map>
 
 #include <spdlog/sinks/base_sink.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
@@ -88,15 +91,89 @@ spdlog::level::level_enum level_for(const Options& o, std::string_view component
   return parse_level(it != o.component_levels.end() ? it->second : o.default_level);
 }
 
+/// Options::burst_lines: similar lines beyond the burst within a window are counted, not written.
+class RateLimitSink final : public spdlog::sinks::base_sink<std::mutex> {
+ public:
+  RateLimitSink(spdlog::sink_ptr inner, int burst, std::chrono::milliseconds window)
+      : inner_(std::move(inner)), burst_(burst), window_(window) {}
+
+ protected:
+  void sink_it_(const spdlog::details::log_msg& msg) override {
+    if (burst_ <= 0) return inner_->log(msg);
+    std::string key(msg.logger_name.data(), msg.logger_name.size());
+    key += '\x1f';
+    key += static_cast<char>('0' + static_cast<int>(msg.level));
+    for (const char c : msg.payload) {  // "similar": the same text but for its numbers
+      if (std::isdigit(static_cast<unsigned char>(c)) == 0) key += c;
+      else if (key.back() != '#') key += '#';
+    }
+    if (entries_.size() > kMaxShapes) report_all(msg), entries_.clear();
+    auto& e = entries_[key];
+    if (e.count == 0 || msg.time - e.window_start >= window_) {
+      report(e, msg);
+      e.window_start = msg.time;
+      e.count = 0;
+    }
+    if (++e.count <= burst_) return inner_->log(msg);
+    ++e.suppressed;
+    e.example.assign(msg.payload.data(), msg.payload.size());
+    e.level = msg.level;
+    e.logger.assign(msg.logger_name.data(), msg.logger_name.size());
+  }
+  void flush_() override {
+    // what was suppressed and never followed by another line is said at the flush
+    if (!entries_.empty()) report_all(spdlog::details::log_msg{});
+    inner_->flush();
+  }
+
+ private:
+  struct Entry {
+    spdlog::log_clock::time_point window_start{};
+    int count = 0;
+    std::size_t suppressed = 0;
+    std::string example, logger;
+    spdlog::level::level_enum level = spdlog::level::info;
+  };
+  static constexpr std::size_t kMaxShapes = 4096;
+
+  void report(Entry& e, const spdlog::details::log_msg& now) {
+    if (e.suppressed == 0) return;
+    const std::string text = "suppressed " + std::to_string(e.suppressed) + " similar line" +
+                             (e.suppressed == 1 ? "" : "s") + " (rate limit " + std::to_string(burst_) + " per " +
+                             std::to_string(window_.count()) + " ms), the last: " + e.example;
+    spdlog::details::log_msg m(e.logger, e.level, text);
+    if (now.time != spdlog::log_clock::time_point{}) m.time = now.time;
+    inner_->log(m);
+    e.suppressed = 0;
+  }
+  void report_all(const spdlog::details::log_msg& now) {
+    for (auto& [key, e] : entries_) report(e, now);
+  }
+
+  spdlog::sink_ptr inner_;
+  int burst_;
+  std::chrono::milliseconds window_;
+  std::unordered_map<std::string, Entry> entries_;
+};
+
 spdlog::sink_ptr make_sink(const Options& o) {
   const Target t = resolve_target(o.target, std::getenv("JOURNAL_STREAM"), std::getenv("INVOCATION_ID"));
-  if (t == Target::journal) return std::make_shared<JournalSink>(o.program);
-  auto sink = std::make_shared<spdlog::sinks::stderr_color_sink_mt>();
-  sink->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%-5l%$ [%n] %v");
-  return sink;
+  spdlog::sink_ptr sink;
+  if (t == Target::journal) {
+    sink = std::make_shared<JournalSink>(o.program);
+  } else {
+    sink = std::make_shared<spdlog::sinks::stderr_color_sink_mt>();
+    sink->set_pattern("%Y-%m-%d %H:%M:%S.%e %^%-5l%$ [%n] %v");
+  }
+  return rate_limited(std::move(sink), o.burst_lines, o.rate_window_ms);
 }
 
 }  // namespace
+
+spdlog::sink_ptr rate_limited(spdlog::sink_ptr inner, int burst_lines, int window_ms) {
+  if (burst_lines <= 0) return inner;
+  return std::make_shared<RateLimitSink>(std::move(inner), burst_lines, std::chrono::milliseconds(window_ms));
+}
 
 const std::vector<std::string>& level_names() {
   static const std::vector<std::string> names{"trace", "debug", "info", "warn", "error", "critical", "off"};

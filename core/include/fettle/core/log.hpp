@@ -24,7 +24,18 @@ struct Options {
   std::map<std::string, std::string> component_levels;  ///< e.g. {"plc": "debug"}
   std::optional<std::string> override_level;           ///< --log-level: wins over everything
   Target target = Target::automatic;
+  /// Similar lines (the same logger, level and text with its numbers left out) beyond
+  /// `burst_lines` within `rate_window_ms` are not written; the next similar line after the
+  /// window says how many were suppressed. A device that floods (a robot sending FAULT lines
+  /// as fast as it can) cannot fill the disk or make journald drop real messages
+  /// (docs/security.md "Limits"; test Log.SimilarLinesBeyondTheBurstAreCountedNotWritten).
+  /// 0 burst_lines: no limit.
+  int burst_lines = 20;
+  int rate_window_ms = 5000;
 };
+
+/// The rate limit of Options::burst_lines around `inner` (init() puts it round every sink).
+spdlog::sink_ptr rate_limited(spdlog::sink_ptr inner, int burst_lines, int window_ms);
 
 /// The level names accepted in configs and on the command line.
 const std::vector<std::string>& level_names();
