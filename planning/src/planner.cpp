@@ -206,12 +206,18 @@ TrajectoryPoint make_point(const Transform& T_base_part, const Transform& T_part
 Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
   const auto& region = *in.region;
   const auto& tool = *in.tool;
-  const auto& pts = in.excess_points_part;
   RansacOptions plane_opts = settings.ransac;
   plane_opts.inlier_mm = std::max(plane_opts.inlier_mm, 1.0);
-  auto plane = fit_plane_ransac(pts, plane_opts);
+  auto plane = fit_plane_ransac(in.excess_points_part, plane_opts);
   if (!plane) return region_error(region.name, "fit", "no parting plane could be fitted to the excess points");
   if (plane->normal.z() < 0) plane->normal = -plane->normal, plane->d = -plane->d;
+  // The ring is fitted to the flash on the parting plane only: excess elsewhere in the ROI
+  // (the body's form deviation read as excess, 15 mm below a flange's fin) pulled the ellipse
+  // off the flange when the camera saw a short arc of fin.
+  std::vector<Vec3> pts;
+  pts.reserve(in.excess_points_part.size());
+  for (const auto& p : in.excess_points_part)
+    if (std::abs(plane->signed_distance(p)) <= plane_opts.inlier_mm) pts.push_back(p);
   plan.plane = *plane;
   const Vec3 w = plane->normal;
   Vec3 centroid = Vec3::Zero();

@@ -264,6 +264,38 @@ TEST(RingPlan, AShortArcOrARingOutsideTheRoiIsRefusedWithTheReason) {
   EXPECT_NE(outside.error().message.find("does not lie in the region's ROI"), std::string::npos) << outside.error().message;
 }
 
+// A camera that sees 240 degrees of the fin, and excess elsewhere in the ROI (the body's form
+// deviation read as material, 15 mm below the parting plane, on the side the fin is not seen):
+// the ring is fitted to the flash on the parting plane only. With the stray points in the
+// ellipse's fit it came out 50.6 x 47.4 mm and the disc went 0.78 mm into the flange.
+TEST(RingPlan, ExcessOffThePartingPlaneDoesNotPullTheRingOffTheFlange) {
+  auto scene = make_scene();
+  RegionInput seen = scene.inputs[0];
+  std::vector<Vec3> kept;
+  double z = 0.0;
+  for (const auto& p : seen.excess_points_part)
+    if (std::abs(std::atan2(p.y(), p.x())) < 120.0 * std::numbers::pi / 180.0) kept.push_back(p), z = p.z();
+  ASSERT_GT(kept.size(), 40U);
+  // stray bumps on the body 15 mm below the fin
+  const int stray = static_cast<int>(kept.size()) / 3;
+  for (int i = 0; i < stray; ++i) {  // on the side the camera does not see, outside the flange
+    const double a = std::numbers::pi * (0.8 + 0.4 * i / stray), r = 53.0 + 0.5 * std::sin(0.7 * i);
+    kept.emplace_back(r * std::cos(a), r * std::sin(a), z - 15.0 + 0.2 * std::sin(1.3 * i));
+  }
+  seen.excess_points_part = kept;
+  const auto plan = plan_region(seen, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  const auto e = ellipse_geometry(plan->conic);
+  ASSERT_TRUE(e);
+  EXPECT_LT(e->semi_major - e->semi_minor, 2.0);
+  EXPECT_GT(e->semi_minor, 44.0);
+  EXPECT_LT(e->semi_major, 49.0);
+  for (const auto& p : plan->points) {
+    if (p.kind != MoveKind::grind) continue;
+    EXPECT_LE(tool_penetration_mm(*seen.tool, p.T_base_tool.to_transform(), part_sdf), 0.0);
+  }
+}
+
 TEST(RingPlan, ClosedChamferLoopAtOneMillimetreSpacingWithOverlapAndLeads) {
   auto scene = make_scene();
   const RegionInput& in = scene.inputs[0];
