@@ -379,6 +379,7 @@ TEST_F(ControlFixture, IdleClientsAreClosed) {
 
 TEST_F(ControlFixture, OneClientTooManyIsToldWhyAndASlotFreesWhenOneLeaves) {
   options.max_clients = 2;
+  options.privileged_slot = false;  // the tests run as root: the third would get a's slot once idle
   ASSERT_TRUE(start());
   auto b = control::Client::connect(socket());
   ASSERT_TRUE(b);
@@ -403,6 +404,82 @@ TEST_F(ControlFixture, OneClientTooManyIsToldWhyAndASlotFreesWhenOneLeaves) {
   auto r = d->request(json{{"cmd", "status"}}, 2s);
   ASSERT_TRUE(r) << r.error().message;
   EXPECT_TRUE(r->value("ok", false)) << r->dump();
+}
+
+// A client that drips one byte now and then, never finishing its line, held its slot until
+// the 10-minute idle timeout: 32 of them locked every `fettle status` out (issue 40, item 5).
+TEST_F(ControlFixture, ADrippingClientIsDroppedAtTheRequestDeadline) {
+  options.request_timeout = 300ms;
+  ASSERT_TRUE(start());
+  const int fd = raw_connect(socket());
+  ASSERT_GE(fd, 0);
+  const auto t0 = std::chrono::steady_clock::now();
+  bool closed = false;
+  for (int i = 0; i < 30 && !closed; ++i) {  // a byte every 100 ms: never idle, never complete
+    if (::send(fd, "{", 1, MSG_NOSIGNAL) != 1) closed = true;
+    char c = 0;
+    if (::recv(fd, &c, 1, MSG_DONTWAIT) == 0) closed = true;
+    std::this_thread::sleep_for(100ms);
+  }
+  EXPECT_TRUE(closed) << "a line never completed kept its slot for 3 s";
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, 2s);
+  ::close(fd);
+  // one that sends nothing at all is dropped at the same deadline
+  const int quiet = raw_connect(socket());
+  ASSERT_GE(quiet, 0);
+  timeval tv{3, 0};
+  ::setsockopt(quiet, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
+  char c = 0;
+  EXPECT_EQ(::recv(quiet, &c, 1, 0), 0);
+  ::close(quiet);
+}
+
+// All slots held by clients that made one request and then sit idle: a client of root or of the
+// daemon's own user (the tests run as either) still gets its answer, for which the client idle
+// longest is dropped. Clients that are busy are never dropped for it (the test above:
+// OneClientTooManyIsToldWhyAndASlotFreesWhenOneLeaves).
+TEST_F(ControlFixture, AFullServerStillAnswersRootByDroppingItsLongestIdleClient) {
+  options.max_clients = 4;
+  options.request_timeout = 200ms;
+  ASSERT_TRUE(start());
+  std::vector<int> idle;
+  for (int i = 0; i < 4; ++i) {
+    const int fd = raw_connect(socket());
+    ASSERT_GE(fd, 0);
+    ASSERT_EQ(::send(fd, "{\"cmd\":\"status\"}\n", 17, MSG_NOSIGNAL), 17);
+    char buf[4096];
+    ASSERT_GT(::recv(fd, buf, sizeof buf, 0), 0);
+    idle.push_back(fd);
+    std::this_thread::sleep_for(20ms);  // the first is the one idle longest
+  }
+  std::this_thread::sleep_for(300ms);
+  ASSERT_EQ(client_count(), 4U);
+  const auto r = ask(socket(), json{{"cmd", "status"}});
+  EXPECT_TRUE(r.value("ok", false)) << r.dump();
+  char c = 0;
+  EXPECT_EQ(::recv(idle.front(), &c, 1, MSG_DONTWAIT), 0) << "the client idle longest made room";
+  for (int fd : idle) ::close(fd);
+}
+
+// 300 connects at once: the listen backlog of 16 refused most of them at connect (EAGAIN); now
+// they wait to be accepted and are told too_many_clients, and status still answers.
+TEST_F(ControlFixture, ABurstOfConnectsIsNotRefusedByTheBacklog) {
+  options.max_clients = 8;
+  ASSERT_TRUE(start());
+  std::vector<int> fds;
+  int refused = 0;
+  for (int i = 0; i < 300; ++i) {  // non-blocking, as a probe would: a full backlog is EAGAIN
+    const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+    sockaddr_un addr{};
+    addr.sun_family = AF_UNIX;
+    std::strncpy(addr.sun_path, socket().c_str(), sizeof(addr.sun_path) - 1);
+    if (::connect(fd, reinterpret_cast<const sockaddr*>(&addr), sizeof addr) != 0) ++refused;
+    fds.push_back(fd);
+  }
+  EXPECT_EQ(refused, 0);
+  for (int fd : fds) ::close(fd);
+  const auto r = ask(socket(), json{{"cmd", "status"}});
+  EXPECT_TRUE(r.value("ok", false)) << r.dump();
 }
 
 TEST(ControlClient, NoServerSaysIsFettledRunning) {

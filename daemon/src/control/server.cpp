@@ -132,16 +132,31 @@ struct Server::Impl {
   void remove_socket_file();
 };
 
+/// The peer is root or runs as the daemon's own user (SO_PEERCRED).
+bool privileged(local::socket& socket) {
+  ucred cred{};
+  socklen_t len = sizeof cred;
+  if (::getsockopt(socket.native_handle(), SOL_SOCKET, SO_PEERCRED, &cred, &len) != 0) return false;
+  return cred.uid == 0 || cred.uid == ::geteuid();
+}
+
 /// One client: reads lines, answers each, one batch at a time (no reading while a reply
 /// is being written, so a client that does not read its replies only stalls itself).
 struct Connection : std::enable_shared_from_this<Connection> {
   Connection(Server::Impl& server_, local::socket socket_)
-      : server(&server_), socket(std::move(socket_)), write_timer(server_.io), idle_timer(server_.io) {}
+      : server(&server_),
+        socket(std::move(socket_)),
+        write_timer(server_.io),
+        idle_timer(server_.io),
+        request_timer(server_.io) {}
 
   Server::Impl* server;  // null once closed
   local::socket socket;
   asio::steady_timer write_timer;
   asio::steady_timer idle_timer;
+  asio::steady_timer request_timer;  ///< armed while a request line is incomplete (and at connect)
+  bool request_pending = false;
+  std::chrono::steady_clock::time_point last_activity = std::chrono::steady_clock::now();
   std::array<char, 4096> chunk{};
   LineProtocol protocol{[s = server](const json& request) { return s->handle(request); }, server->options.max_line_bytes};
   std::string out;
@@ -149,7 +164,36 @@ struct Connection : std::enable_shared_from_this<Connection> {
 
   void start() {
     arm_idle();
+    arm_request();  // the first request is due within request_timeout of connecting
     read();
+  }
+
+  void arm_request() {
+    if (server->options.request_timeout.count() <= 0 || request_pending) return;
+    request_pending = true;
+    request_timer.expires_after(server->options.request_timeout);
+    request_timer.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+      if (ec || self->closed || !self->request_pending) return;
+      log::get("control")->warn("control: closing a client whose request was not complete within {} ms",
+                                self->server->options.request_timeout.count());
+      self->close();
+    });
+  }
+
+  /// After a chunk: a line left incomplete must be finished within request_timeout.
+  void track_request(std::string_view data) {
+    if (data.empty()) return;
+    if (data.back() == '\n') {
+      request_pending = false;
+      request_timer.cancel();
+    } else {
+      arm_request();
+    }
+  }
+
+  /// How long nothing came (for the privileged slot), when no reply is pending.
+  [[nodiscard]] std::chrono::steady_clock::duration idle_for() const {
+    return std::chrono::steady_clock::now() - last_activity;
   }
 
   void arm_idle() {
@@ -171,6 +215,8 @@ struct Connection : std::enable_shared_from_this<Connection> {
                                return;
                              }
                              self->arm_idle();
+                             self->last_activity = std::chrono::steady_clock::now();
+                             self->track_request(std::string_view{self->chunk.data(), n});
                              self->consume(std::string_view{self->chunk.data(), n});
                              if (self->closed) return;
                              if (self->out.empty())
@@ -218,6 +264,7 @@ struct Connection : std::enable_shared_from_this<Connection> {
     socket.close(ec);
     write_timer.cancel();
     idle_timer.cancel();
+    request_timer.cancel();
     if (server != nullptr) {
       auto* s = server;
       server = nullptr;
@@ -235,6 +282,23 @@ void Server::Impl::accept() {
       log::get("control")->warn("control: accept on {} failed: {}", options.socket_path.string(), ec.message());
       accept();
       return;
+    }
+    if (connections.size() >= options.max_clients && options.privileged_slot && privileged(socket)) {
+      // root or the daemon's own uid: the client idle longest makes room, if one is idle past
+      // the request deadline with nothing to write (docs/daemon-control.md; test
+      // ControlFixture.AFullServerStillAnswersRootByDroppingItsLongestIdleClient)
+      std::shared_ptr<Connection> oldest;
+      for (const auto& c : connections)
+        if (c->out.empty() && !c->request_pending && c->idle_for() >= options.request_timeout &&
+            (!oldest || c->idle_for() > oldest->idle_for()))
+          oldest = c;
+      if (oldest) {
+        log::get("control")->warn("control: {} clients connected; closing the one idle longest ({} s) for a client "
+                                  "of root or fettled's own user",
+                                  connections.size(),
+                                  std::chrono::duration_cast<std::chrono::seconds>(oldest->idle_for()).count());
+        oldest->close();
+      }
     }
     if (connections.size() >= options.max_clients) {
       // Best effort, non-blocking: the client learns why before we close it.
@@ -401,7 +465,9 @@ Status Server::start() {
   }
   impl_->socket_dev = st.st_dev;
   impl_->socket_ino = st.st_ino;
-  acc.listen(16, ec);
+  // the kernel's largest backlog (net.core.somaxconn): a burst of connects waits to be
+  // accepted (and told too_many_clients) instead of being refused at connect
+  acc.listen(asio::socket_base::max_listen_connections, ec);
   if (ec) {
     acc.close();
     impl_->remove_socket_file();

@@ -96,6 +96,12 @@ struct ServerOptions {
   std::size_t max_clients = 32;                 ///< one more gets too_many_clients and is closed
   std::chrono::milliseconds write_timeout{5000};  ///< a client not reading its replies is dropped
   std::chrono::milliseconds idle_timeout{600000}; ///< a client silent this long is dropped (0 = never)
+  /// A request line must be complete this long after its first byte, and the first one this long
+  /// after connecting: a client dripping a byte now and then is dropped (0 = never).
+  std::chrono::milliseconds request_timeout{5000};
+  /// When max_clients are connected, a client of root or of the daemon's own uid still gets in:
+  /// the client idle longest (at least request_timeout, no reply pending) is dropped for it.
+  bool privileged_slot = true;
   bool maintenance = false;                     ///< initial maintenance mode
 };
 
