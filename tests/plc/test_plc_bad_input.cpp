@@ -222,6 +222,24 @@ TEST_F(PlcBadPeer, AReplySentByteByByteComesUp) {
   EXPECT_TRUE(events.all<plc::LinkDown>().empty()) << events.dump();
 }
 
+// A PLC dripping its reply a byte every 60 ms, each byte well within libmodbus's per-byte
+// timeout (150 ms) but the whole reply taking seconds: the poll's deadline is the response
+// timeout for the whole read, and the link goes down saying so (issue 40, item 7).
+TEST_F(PlcBadPeer, AReplyDrippedSlowerThanTheDeadlineIsATimeout) {
+  start(modbus_server(good_plc(), [](int fd, const std::string& bytes) {
+    for (const char c : bytes) {
+      if (!RawTcpPeer::send(fd, std::string(1, c))) return false;
+      std::this_thread::sleep_for(milliseconds(60));
+    }
+    return true;
+  }));
+  const auto down = events.wait_for<plc::LinkDown>(kWait);
+  ASSERT_TRUE(down) << events.dump();
+  EXPECT_EQ(down->reason, plc::LinkDownReason::timeout) << down->detail;
+  EXPECT_NE(down->detail.find("more than the poll's deadline"), std::string::npos) << down->detail;
+  EXPECT_TRUE(events.all<plc::LinkUp>().empty()) << events.dump();
+}
+
 // After a hostile peer, the link comes up by itself once a good PLC answers on the same port.
 TEST_F(PlcBadPeer, AfterGarbageTheLinkRecoversWhenAGoodPlcAnswers) {
   auto good = modbus_server(good_plc());

@@ -271,6 +271,7 @@ struct Link::Impl {
 
   void poll_once() {
     std::array<std::uint16_t, reg::plc_block_size> regs{};
+    const auto started = Clock::now();
     const int rc = modbus_read_registers(ctx, options.register_base + reg::plc_block_start, reg::plc_block_size,
                                          regs.data());
     if (rc != reg::plc_block_size) {
@@ -278,6 +279,16 @@ struct Link::Impl {
       return;
     }
     const auto now = Clock::now();
+    // libmodbus times each byte, not the reply: a PLC dripping a byte every 150 ms answered in
+    // 5.6 s and stayed "up". The whole read has response_timeout_ms (docs/plc-interface.md;
+    // test PlcBadPeer.AReplyDrippedSlowerThanTheDeadlineIsATimeout).
+    if (const auto took = std::chrono::duration_cast<milliseconds>(now - started);
+        took > milliseconds(options.response_timeout_ms)) {
+      drop(LinkDownReason::timeout, "reading the PLC block at " + peer() + " took " + std::to_string(took.count()) +
+                                        " ms, more than the poll's deadline ([plc] response_timeout_ms = " +
+                                        std::to_string(options.response_timeout_ms) + " ms)");
+      return;
+    }
     const auto decoded = decode_plc_block(regs, options.limits);
     // Heartbeat: the raw register is always a valid value.
     const auto hb = regs[reg::plc_heartbeat - reg::plc_block_start];
