@@ -99,6 +99,17 @@ std::function<std::uint16_t(int)> good_plc() {
   };
 }
 
+/// A modbus_server() sender that sends a reply one byte at a time, `gap` apart.
+auto byte_by_byte(milliseconds gap) {
+  return [gap](int fd, const std::string& bytes) {
+    for (const char c : bytes) {
+      if (!RawTcpPeer::send(fd, std::string(1, c))) return false;
+      std::this_thread::sleep_for(gap);
+    }
+    return true;
+  };
+}
+
 class PlcBadPeer : public ::testing::Test {
  protected:
   void start(RawTcpPeer::Session session) {
@@ -211,13 +222,7 @@ TEST_F(PlcBadPeer, AReplyThatStopsHalfwayIsATimeout) {
 // A slow PLC that answers one byte at a time, each well within the response timeout: that is
 // Modbus TCP (a stream), and the link comes up.
 TEST_F(PlcBadPeer, AReplySentByteByByteComesUp) {
-  start(modbus_server(good_plc(), [](int fd, const std::string& bytes) {
-    for (const char c : bytes) {
-      if (!RawTcpPeer::send(fd, std::string(1, c))) return false;
-      std::this_thread::sleep_for(milliseconds(1));
-    }
-    return true;
-  }));
+  start(modbus_server(good_plc(), byte_by_byte(milliseconds(1))));
   ASSERT_TRUE(events.wait_for<plc::LinkUp>(kWait)) << events.dump();
   EXPECT_TRUE(events.all<plc::LinkDown>().empty()) << events.dump();
 }
@@ -226,13 +231,7 @@ TEST_F(PlcBadPeer, AReplySentByteByByteComesUp) {
 // timeout (150 ms) but the whole reply taking seconds: the poll's deadline is the response
 // timeout for the whole read, and the link goes down saying so (issue 40, item 7).
 TEST_F(PlcBadPeer, AReplyDrippedSlowerThanTheDeadlineIsATimeout) {
-  start(modbus_server(good_plc(), [](int fd, const std::string& bytes) {
-    for (const char c : bytes) {
-      if (!RawTcpPeer::send(fd, std::string(1, c))) return false;
-      std::this_thread::sleep_for(milliseconds(60));
-    }
-    return true;
-  }));
+  start(modbus_server(good_plc(), byte_by_byte(milliseconds(60))));
   const auto down = events.wait_for<plc::LinkDown>(kWait);
   ASSERT_TRUE(down) << events.dump();
   EXPECT_EQ(down->reason, plc::LinkDownReason::timeout) << down->detail;
