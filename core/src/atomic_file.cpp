@@ -6,12 +6,23 @@
 
 #include <cerrno>
 #include <cstring>
+#include <fstream>
 #include <string>
 
 namespace fettle {
 namespace {
 Error io_error(const std::filesystem::path& path, const char* what) {
   return Error{"io.write", std::string("cannot ") + what + " '" + path.string() + "': " + std::strerror(errno)};
+}
+
+/// The process's umask, read without changing it (umask() can only be read by setting it, which
+/// races with other threads): /proc/self/status says it since Linux 4.7. 022 if it cannot tell.
+::mode_t current_umask() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("Umask:", 0) == 0) return static_cast<::mode_t>(std::stoul(line.substr(6), nullptr, 8));
+  return 022;
 }
 }  // namespace
 
@@ -34,7 +45,9 @@ Status write_file_atomic(const std::filesystem::path& path, std::string_view dat
     }
     written += static_cast<std::size_t>(n);
   }
-  if (::fchmod(fd, 0644) != 0 || ::fsync(fd) != 0) {
+  // mkstemp makes 0600: the file gets what a plain create would, 0666 less the umask (fettled's
+  // unit sets UMask=0027: records 0640; test AtomicFile.TheFileModeFollowsTheUmask)
+  if (::fchmod(fd, 0666 & ~current_umask()) != 0 || ::fsync(fd) != 0) {
     Error e = io_error(tmp, "sync");
     ::close(fd);
     ::unlink(tmp.c_str());
