@@ -152,6 +152,14 @@ TEST(Records, ACycleWithoutEndShowsAsInterruptedAfterRestart) {
   ASSERT_EQ(interrupted->size(), 1U);
   EXPECT_EQ(interrupted->front(), id);
   EXPECT_EQ(r.cycles(1).front().result, "INTERRUPTED");
+  // its folder has a report.json that says so
+  {
+    std::ifstream report(dir / "cycles" / id / "report.json");
+    ASSERT_TRUE(report) << "no report.json in the interrupted cycle's folder";
+    const auto j = nlohmann::json::parse(report);
+    EXPECT_EQ(j.value("result", ""), "INTERRUPTED");
+    EXPECT_EQ(j.value("id", ""), id);
+  }
   // Marked once: a second restart finds nothing new.
   Records r2(dir, keep(10, 100));
   auto again = r2.open();

@@ -198,6 +198,18 @@ Result<std::vector<std::string>> Records::open() {
     interrupted.push_back(c.id);
     if (auto st = append(json{{"event", "interrupted"}, {"id", c.id}, {"at", utc_now_iso()}}); !st) return st.error();
     log->warn("cycle {} was interrupted (started {}, never ended): marked INTERRUPTED", c.id, c.started);
+    // Its folder gets a report.json too, so that every cycle folder has one: what is known of it
+    // (docs/daemon.md "Records"; test Records.ACycleWithoutEndShowsAsInterruptedAfterRestart).
+    if (const fs::path dir = cycles_dir() / c.id; fs::is_directory(dir, ec) && !fs::exists(dir / "report.json", ec)) {
+      const json report{{"id", c.id},
+                        {"result", "INTERRUPTED"},
+                        {"started", c.started},
+                        {"interrupted_found", utc_now_iso()},
+                        {"message", "fettled stopped during this cycle (killed, crashed or power lost); the files "
+                                    "here are what it had written by then, the part's state is unknown"}};
+      if (auto st = write_file_atomic(dir / "report.json", report.dump(2) + "\n"); !st)
+        log->warn("cycle {}: {}", c.id, st.error().message);
+    }
   }
   return interrupted;
 }
