@@ -183,7 +183,8 @@ std::optional<toml::table> parse_file(const std::filesystem::path& file, Report&
     return std::nullopt;
   }
   // The parser recurses per level: a header of 50 000 dotted parts overflows the stack, so the
-  // depth is checked on the text first (docs/security.md; test ConfigHostile.*).
+  // depth is checked on the text first (docs/security.md; tests ConfigBadInput.AHeaderOfFiftyThousand*,
+  // ConfigNesting.*).
   if (const auto deep = too_deeply_nested(text, kMaxNesting)) {
     report.add(toml::source_region{{static_cast<toml::source_index>(deep->line), static_cast<toml::source_index>(deep->column)},
                                    {},

@@ -2,9 +2,7 @@
 #include "fettle/process/compensation.hpp"
 
 #include <algorithm>
-#include <array>
 #include <cmath>
-#include <cstdint>
 #include <cstdio>
 #include <fstream>
 #include <functional>
@@ -15,9 +13,8 @@
 #include <Eigen/Eigenvalues>
 #include <nlohmann/json.hpp>
 
-#include "fettle/config/roi.hpp"
 #include "fettle/core/atomic_file.hpp"
-#include "fettle/planning/planner.hpp"
+#include "internal.hpp"
 
 namespace fettle::process {
 
@@ -62,32 +59,25 @@ struct ToolPose {
   }
 };
 
-/// Integer grid cells packed into one key (21 bits an axis).
-std::int64_t cell_key(std::int64_t x, std::int64_t y, std::int64_t z) {
-  return ((x & 0x1FFFFF) << 42) | ((y & 0x1FFFFF) << 21) | (z & 0x1FFFFF);
-}
-
-/// The commanded tool poses (every pose and every sample of the moves between them, as the
-/// verification sweeps them), by the grid cells their bounding boxes, grown by `grow`, overlap.
+/// Tool poses by the grid cells their bounding boxes, grown by `grow`, overlap.
 class ToolIndex {
  public:
-  ToolIndex(std::vector<ToolPose> poses, double cell, double grow) : poses_(std::move(poses)), cell_(cell) {
+  ToolIndex(std::vector<ToolPose> poses, double cell, double grow) : poses_(std::move(poses)), keys_{cell} {
     for (std::size_t i = 0; i < poses_.size(); ++i) {
       const auto& t = poses_[i];
       const Vec3 a = t.tip, b = t.ball ? t.tip : Vec3(t.tip + t.length * t.axis);
       const Vec3 lo = a.cwiseMin(b) - Vec3::Constant(t.radius + grow);
       const Vec3 hi = a.cwiseMax(b) + Vec3::Constant(t.radius + grow);
-      const auto l = coords(lo), h = coords(hi);
+      const auto l = keys_.coords(lo), h = keys_.coords(hi);
       for (auto z = l[2]; z <= h[2]; ++z)
         for (auto y = l[1]; y <= h[1]; ++y)
-          for (auto x = l[0]; x <= h[0]; ++x) cells_[cell_key(x, y, z)].push_back(i);
+          for (auto x = l[0]; x <= h[0]; ++x) cells_[CellKeys::pack(x, y, z)].push_back(i);
     }
   }
   /// The smallest signed distance of q to any pose's tool, with that tool's normal; false when
   /// no pose is near.
   bool nearest(const Vec3& q, double& sd, Vec3& normal) const {
-    const auto c = coords(q);
-    const auto it = cells_.find(cell_key(c[0], c[1], c[2]));
+    const auto it = cells_.find(keys_.key(q));
     if (it == cells_.end()) return false;
     bool found = false;
     Vec3 n;
@@ -100,45 +90,26 @@ class ToolIndex {
   [[nodiscard]] bool empty() const { return poses_.empty(); }
 
  private:
-  [[nodiscard]] std::array<std::int64_t, 3> coords(const Vec3& p) const {
-    return {static_cast<std::int64_t>(std::floor(p.x() / cell_)), static_cast<std::int64_t>(std::floor(p.y() / cell_)),
-            static_cast<std::int64_t>(std::floor(p.z() / cell_))};
-  }
   std::vector<ToolPose> poses_;
-  double cell_;
+  CellKeys keys_;
   std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
 };
 
+/// The commanded tool poses that cut: every pose and move sample but the air moves (cone tools
+/// are not measured, the header says so).
 std::vector<ToolPose> commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground) {
-  const auto& recipe = loaded.recipe;
   std::vector<ToolPose> out;
-  for (const auto& traj : ground)
-    for (std::size_t i = 0; i < traj.points.size(); ++i) {
-      const auto& p = traj.points[i];
-      if (p.kind == MoveKind::air) continue;  // air moves cut nothing
-      const std::string name = traj.region_of(p);
-      const auto it = std::find_if(recipe.regions.begin(), recipe.regions.end(),
-                                   [&](const config::Region& r) { return r.name == name; });
-      if (it == recipe.regions.end()) continue;
-      const auto& tool = loaded.tool_for(*it);
-      if (tool.shape == config::ToolShape::cone) continue;  // not measured (the header says so)
-      auto add = [&](const Pose& m) {
-        const Transform T = m.to_transform();
-        ToolPose t;
-        t.axis = T.linear().col(2);
-        t.radius = 0.5 * tool.diameter_mm;
-        t.ball = tool.shape == config::ToolShape::ball;
-        t.tip = t.ball ? Vec3(T.translation() + t.radius * t.axis) : Vec3(T.translation());
-        t.length = std::max(0.0, tool.length_mm);
-        out.push_back(t);
-      };
-      if (i > 0 && traj.points[i - 1].kind != MoveKind::air)
-        planning::for_each_move_sample(traj.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {
-          add(m);
-          return true;
-        });
-      add(p.T_base_tool);
-    }
+  for_each_tool_pose(loaded, ground, false, [&](std::size_t, const config::Tool& tool, const Pose& m) {
+    if (tool.shape == config::ToolShape::cone) return;
+    const Transform T = m.to_transform();
+    ToolPose t;
+    t.axis = T.linear().col(2);
+    t.radius = 0.5 * tool.diameter_mm;
+    t.ball = tool.shape == config::ToolShape::ball;
+    t.tip = t.ball ? Vec3(T.translation() + t.radius * t.axis) : Vec3(T.translation());
+    t.length = std::max(0.0, tool.length_mm);
+    out.push_back(t);
+  });
   return out;
 }
 
@@ -227,16 +198,15 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
   // weighted by Huber's rule.
   CutOffset out;
   Vec3 b = Vec3::Zero();
-  Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
-  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
-  double sigma = 0.0, wsum = 0.0;
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();    // projector onto the observed directions
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();  // of b
+  double sigma = 0.0;
   std::size_t used = 0;
   constexpr double kHuberMm = 0.05;
   for (const double gate : {settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15}) {
-    N.setZero();
+    Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
     Vec3 g = Vec3::Zero();
-    double e2 = 0.0;
-    wsum = 0.0;
+    double e2 = 0.0, wsum = 0.0;
     used = 0;
     for (const auto& s : samples) {
       const double e = s.sd - s.n.dot(b);
@@ -253,26 +223,20 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(N);
     b.setZero();
     P.setZero();
+    cov.setZero();
     for (int k = 0; k < 3; ++k) {
       const double lambda = eig.eigenvalues()(k);
       if (!(lambda >= static_cast<double>(settings.min_points))) continue;
       const Vec3 v = eig.eigenvectors().col(k);
       b += (v.dot(g) / lambda) * v;
       P += v * v.transpose();
+      cov += (sigma * sigma / lambda) * v * v.transpose();
     }
   }
   if (used < settings.min_points || P.trace() < 0.5)
     return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(used) +
                                             " re-scanned points lie on the commanded tool surface (at least " +
                                             std::to_string(settings.min_points) + " along one direction)"};
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(N);
-  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-  for (int k = 0; k < 3; ++k) {
-    const double lambda = eig.eigenvalues()(k);
-    if (!(lambda >= static_cast<double>(settings.min_points))) continue;
-    const Vec3 v = eig.eigenvectors().col(k);
-    cov += (sigma * sigma / lambda) * v * v.transpose();
-  }
   out.offset_mm = b;
   out.observed = P;
   out.std_mm = cov.diagonal().cwiseMax(0.0).cwiseSqrt();

@@ -33,21 +33,6 @@ std::vector<std::string> VerificationResult::regrind_regions() const {
 
 namespace {
 
-/// Integer cells of a uniform grid of `cell` mm, packed into one key (21 bits an axis).
-struct CellKeys {
-  double cell = 1.0;
-  [[nodiscard]] std::array<std::int64_t, 3> coords(const Vec3& p) const {
-    return {static_cast<std::int64_t>(std::floor(p.x() / cell)), static_cast<std::int64_t>(std::floor(p.y() / cell)),
-            static_cast<std::int64_t>(std::floor(p.z() / cell))};
-  }
-  static std::int64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-    return ((x & 0x1FFFFF) << 42) | ((y & 0x1FFFFF) << 21) | (z & 0x1FFFFF);
-  }
-  [[nodiscard]] std::int64_t key(const Vec3& p) const {
-    const auto c = coords(p);
-    return pack(c[0], c[1], c[2]);
-  }
-};
 
 /// Points of a cloud by cells, for the neighbours of a few candidates.
 class PointCells {
@@ -179,40 +164,24 @@ struct ToolVolume {
   }
 };
 
-/// Every pose of the trajectories and every 1 mm of the moves between them (validate()'s
-/// sampling), as tool volumes in the part frame.
+/// Every pose of the trajectories and every 1 mm of the moves between them, air moves too, as
+/// tool volumes in the part frame.
 std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground,
                                       const Transform& T_part_base) {
-  const auto& recipe = loaded.recipe;
   std::vector<ToolVolume> out;
-  for (const auto& traj : ground) {
-    for (std::size_t i = 0; i < traj.points.size(); ++i) {
-      const std::string name = traj.region_of(traj.points[i]);
-      const auto it = std::find_if(recipe.regions.begin(), recipe.regions.end(),
-                                   [&](const config::Region& r) { return r.name == name; });
-      if (it == recipe.regions.end()) continue;
-      const auto& tool = loaded.tool_for(*it);
-      const double R = 0.5 * tool.diameter_mm;
-      const bool ball = tool.shape == config::ToolShape::ball;
-      const double grow = recipe.verification.footprint_margin_mm;
-      auto add = [&](const Pose& m) {
-        const Transform T = T_part_base * m.to_transform();
-        const Vec3 tip = T.translation(), z = T.linear().col(2);
-        ToolVolume v;
-        v.region = static_cast<std::size_t>(it - recipe.regions.begin());
-        v.a = ball ? Vec3(tip + R * z) : tip;
-        v.b = ball ? v.a : Vec3(tip + std::max(0.0, tool.length_mm) * z);
-        v.radius = R + grow;
-        out.push_back(v);
-      };
-      if (i > 0)
-        planning::for_each_move_sample(traj.points[i - 1].T_base_tool, traj.points[i].T_base_tool, [&](const Pose& m) {
-          add(m);
-          return true;
-        });
-      add(traj.points[i].T_base_tool);
-    }
-  }
+  const double grow = loaded.recipe.verification.footprint_margin_mm;
+  for_each_tool_pose(loaded, ground, true, [&](std::size_t region, const config::Tool& tool, const Pose& m) {
+    const double R = 0.5 * tool.diameter_mm;
+    const bool ball = tool.shape == config::ToolShape::ball;
+    const Transform T = T_part_base * m.to_transform();
+    const Vec3 tip = T.translation(), z = T.linear().col(2);
+    ToolVolume v;
+    v.region = region;
+    v.a = ball ? Vec3(tip + R * z) : tip;
+    v.b = ball ? v.a : Vec3(tip + std::max(0.0, tool.length_mm) * z);
+    v.radius = R + grow;
+    out.push_back(v);
+  });
   return out;
 }
 
