@@ -54,6 +54,9 @@ for f in sorted((ROOT / "config").rglob("*.toml")):
     mode = b"\x02" if "parts" in f.parts else b"\x01"
     write(d, f.name, mode + f.read_bytes())
     write(d, "auto_" + f.name, b"\x00" + f.read_bytes())
+# Nesting far beyond the parser's limit (64): refused before toml++ recurses (docs/security.md)
+write(d, "auto_deep-dotted-header.toml", b"\x00[a" + b".b" * 50000 + b"]\nx = 1\n")
+write(d, "cell_deep-inline-tables.toml", b"\x01v = " + b"{a = " * 2000 + b"1" + b"}" * 2000 + b"\n")
 
 
 # ---- clouds (first byte: even PCD, odd PLY), cut to a few hundred points
@@ -191,6 +194,32 @@ write(d, "plc_bad_state", regs(3, [1, 20, 1, 42, 9, 7, 6, 2]))
 write(d, "fettle_idle", regs(3, [100, 0, 2, 0, 0, 0, 0, 0, 0, 0]))
 write(d, "fettle_fault", regs(3, [101, 1, 11, 1, 1, 2, 1, 1203, 1, 1]))
 write(d, "short_block", regs(16, [1, 2, 3]))
+
+# ---- Modbus TCP replies: request (write?, transaction, unit, address, count - 1) + reply ADU
+d = target("modbus_reply")
+
+
+def mbap(t, unit, pdu, protocol=0, length=None):
+    return struct.pack(">HHHB", t, protocol, len(pdu) + 1 if length is None else length, unit) + pdu
+
+
+def read_case(t, unit, address, count, reply):
+    return b"\x00" + struct.pack("<HBH", t, unit, address) + bytes([count - 1]) + reply
+
+
+def write_case(t, unit, address, count, reply):
+    return b"\x01" + struct.pack("<HBH", t, unit, address) + bytes([count - 1]) + reply
+
+
+plc_block = bytes([0x03, 20]) + b"".join(struct.pack(">H", v) for v in [2, 17, 1, 42, 2, 2, 2, 1, 0, 0])
+write(d, "read_good", read_case(1, 1, 0, 10, mbap(1, 1, plc_block)))
+write(d, "read_protocol_7", read_case(2, 1, 0, 10, mbap(2, 1, plc_block, protocol=7)))
+write(d, "read_other_unit", read_case(3, 1, 0, 10, mbap(3, 2, plc_block)))
+write(d, "read_mbap_length_2", read_case(4, 1, 0, 10, mbap(4, 1, plc_block, length=2)))
+write(d, "read_mbap_length_ffff", read_case(5, 1, 0, 10, mbap(5, 1, plc_block, length=0xFFFF)))
+write(d, "read_exception", read_case(6, 1, 0, 10, mbap(6, 1, b"\x83\x02")))
+write(d, "write_good", write_case(7, 1, 16, 10, mbap(7, 1, struct.pack(">BHH", 0x10, 16, 10))))
+write(d, "write_other_address", write_case(8, 1, 16, 10, mbap(8, 1, struct.pack(">BHH", 0x10, 17, 10))))
 
 # ---- CANopen: first byte even = socketcand stream, odd = raw frames on the bus
 d = target("canopen")

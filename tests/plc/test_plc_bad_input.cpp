@@ -122,6 +122,21 @@ class PlcBadPeer : public ::testing::Test {
     link.reset();
     peer.reset();
   }
+  /// A good PLC whose every reply goes through `mangle` first: the link goes down with
+  /// bad_reply naming `what`, never up.
+  void expect_bad_reply(std::function<void(std::string&)> mangle, const std::string& what) {
+    start(modbus_server(good_plc(), [mangle](int fd, const std::string& bytes) {
+      auto b = bytes;
+      mangle(b);
+      return RawTcpPeer::send(fd, b);
+    }));
+    const auto down = events.wait_for<plc::LinkDown>(kWait);
+    ASSERT_TRUE(down) << events.dump();
+    EXPECT_EQ(down->reason, plc::LinkDownReason::bad_reply) << down->detail;
+    EXPECT_NE(down->detail.find(what), std::string::npos) << down->detail;
+    ASSERT_TRUE(events.wait_for<plc::Reconnecting>(kWait)) << events.dump();
+    EXPECT_TRUE(events.all<plc::LinkUp>().empty()) << events.dump();
+  }
   void expect_down_and_retried() {
     ASSERT_TRUE(events.wait_for<plc::LinkDown>(kWait)) << events.dump();
     ASSERT_TRUE(events.wait_for<plc::Reconnecting>(kWait)) << events.dump();
@@ -201,7 +216,31 @@ TEST_F(PlcBadPeer, ModbusExceptionIsALinkDownNamingIt) {
   const auto down = events.wait_for<plc::LinkDown>(kWait);
   ASSERT_TRUE(down) << events.dump();
   EXPECT_EQ(down->reason, plc::LinkDownReason::io_error) << down->detail;
+  EXPECT_NE(down->detail.find("Modbus exception 2 (illegal data address)"), std::string::npos) << down->detail;
   EXPECT_TRUE(events.all<plc::LinkUp>().empty());
+}
+
+// Replies that libmodbus 3.1.6 takes as good, each otherwise a perfect answer from a live PLC
+// (issue 40, item 8; the checks: modbus_frame.hpp, docs/plc-interface.md).
+TEST_F(PlcBadPeer, AReplyWithProtocolId7IsABadReply) {
+  expect_bad_reply([](std::string& b) { b[3] = 7; }, "protocol id 7");
+}
+
+TEST_F(PlcBadPeer, AReplyFromAnotherUnitIsABadReply) {
+  expect_bad_reply([](std::string& b) { b[6] = static_cast<char>(b[6] + 1); }, "unit id 2 in the reply to unit 1");
+}
+
+TEST_F(PlcBadPeer, AnMbapLengthOf2IsABadReply) {
+  expect_bad_reply([](std::string& b) { b[4] = 0, b[5] = 2; }, "MBAP length 2 where");
+}
+
+TEST_F(PlcBadPeer, AnMbapLengthOf0xFFFFIsABadReply) {
+  expect_bad_reply([](std::string& b) { b[4] = b[5] = static_cast<char>(0xFF); }, "MBAP length 65535 where");
+}
+
+TEST_F(PlcBadPeer, AWriteReplyEchoingAnotherAddressIsABadReply) {
+  expect_bad_reply([](std::string& b) { if (b[7] == 0x10) b[9] = static_cast<char>(b[9] + 1); },
+                   "the write reply echoes address 17 where 16 was written");
 }
 
 // A reply that stops halfway (a PLC that hangs while sending) is a timeout, not a hang.

@@ -1,10 +1,15 @@
-// The PLC register map's pure encoding/decoding: round trips and every range check.
+// The PLC register map's pure encoding/decoding: round trips and every range check. The
+// Modbus TCP frames the link sends and the check of each reply (modbus_frame.hpp).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
+#include "fettle/drivers/modbus_frame.hpp"
 #include "fettle/drivers/packml.hpp"
 #include "fettle/drivers/plc_registers.hpp"
 
@@ -197,4 +202,95 @@ TEST(Backoff, DoublesFromInitialUpToMax) {
   for (std::size_t i = 0; i < expected.size(); ++i)
     EXPECT_EQ(plc::backoff_delay_ms(static_cast<int>(i), 100, 5000), expected[i]) << "attempt " << i;
   EXPECT_EQ(plc::backoff_delay_ms(1000, 100, 5000), 5000);  // no overflow
+}
+
+namespace modbus = fettle::drivers::modbus;
+
+namespace {
+
+using Bytes = std::vector<std::uint8_t>;
+
+/// A well-formed reply to `r` (registers 0x0100 + i for a read).
+Bytes good_reply(const modbus::Request& r) {
+  Bytes pdu{r.function};
+  if (r.function == modbus::kReadHoldingRegisters) {
+    pdu.push_back(static_cast<std::uint8_t>(2 * r.count));
+    for (int i = 0; i < r.count; ++i) {
+      pdu.push_back(0x01);
+      pdu.push_back(static_cast<std::uint8_t>(i));
+    }
+  } else {
+    pdu.insert(pdu.end(), {static_cast<std::uint8_t>(r.address >> 8), static_cast<std::uint8_t>(r.address & 0xFF),
+                           static_cast<std::uint8_t>(r.count >> 8), static_cast<std::uint8_t>(r.count & 0xFF)});
+  }
+  const auto length = pdu.size() + 1;
+  Bytes adu(7 + pdu.size());
+  adu[0] = static_cast<std::uint8_t>(r.transaction >> 8);
+  adu[1] = static_cast<std::uint8_t>(r.transaction & 0xFF);
+  adu[4] = static_cast<std::uint8_t>(length >> 8);
+  adu[5] = static_cast<std::uint8_t>(length & 0xFF);
+  adu[6] = r.unit;
+  std::copy(pdu.begin(), pdu.end(), adu.begin() + 7);
+  return adu;
+}
+
+}  // namespace
+
+TEST(ModbusFrame, RequestsAreTheStandardsBytes) {
+  const auto read = modbus::read_holding_registers(0x1234, 1, 16, 10);
+  EXPECT_EQ(read.adu, (Bytes{0x12, 0x34, 0, 0, 0, 6, 1, 0x03, 0, 16, 0, 10}));
+  const std::array<std::uint16_t, 2> values{0xABCD, 7};
+  const auto write = modbus::write_multiple_registers(2, 9, 300, values);
+  EXPECT_EQ(write.adu, (Bytes{0, 2, 0, 0, 0, 11, 9, 0x10, 0x01, 0x2C, 0, 2, 4, 0xAB, 0xCD, 0, 7}));
+  EXPECT_THROW((void)modbus::read_holding_registers(1, 1, 0, 126), std::invalid_argument);
+  EXPECT_THROW((void)modbus::write_multiple_registers(1, 1, 0, {}), std::invalid_argument);
+}
+
+TEST(ModbusFrame, AGoodReplyGivesItsRegisters) {
+  const auto read = modbus::read_holding_registers(7, 1, 0, 3);
+  const auto reply = modbus::check_reply(read, good_reply(read));
+  ASSERT_TRUE(reply.ok()) << reply.error;
+  EXPECT_EQ(reply.registers, (std::vector<std::uint16_t>{0x0100, 0x0101, 0x0102}));
+  const std::array<std::uint16_t, 2> values{1, 2};
+  const auto write = modbus::write_multiple_registers(8, 1, 16, values);
+  EXPECT_TRUE(modbus::check_reply(write, good_reply(write)).ok());
+}
+
+// Each field libmodbus 3.1.6 lets through, and the ones it checks, named in the error.
+TEST(ModbusFrame, EveryFieldOfTheReplyIsChecked) {
+  const auto read = modbus::read_holding_registers(7, 1, 0, 3);
+  const auto error_of = [&](const modbus::Request& r, auto&& mangle) {
+    auto bytes = good_reply(r);
+    mangle(bytes);
+    const auto reply = modbus::check_reply(r, bytes);
+    EXPECT_TRUE(reply.registers.empty());
+    return reply.error;
+  };
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[1] = 8; }).find("transaction id 8"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[3] = 7; }).find("protocol id 7"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[2] = 1; }).find("protocol id 256"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[5] = 2; }).find("MBAP length 2 where 9 bytes"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[4] = b[5] = 0xFF; }).find("MBAP length 65535"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[6] = 2; }).find("unit id 2 in the reply to unit 1"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[7] = 0x04; }).find("function 0x04"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b[8] = 4; }).find("byte count 4"), std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b.push_back(0); b[5] += 1; }).find("a read reply of 16 bytes"),
+            std::string::npos);
+  EXPECT_NE(error_of(read, [](Bytes& b) { b.resize(5); }).find("shorter than a Modbus TCP header"), std::string::npos);
+
+  const std::array<std::uint16_t, 2> values{1, 2};
+  const auto write = modbus::write_multiple_registers(9, 1, 16, values);
+  EXPECT_NE(error_of(write, [](Bytes& b) { b[9] = 17; }).find("echoes address 17 where 16"), std::string::npos);
+  EXPECT_NE(error_of(write, [](Bytes& b) { b[11] = 3; }).find("echoes 3 registers where 2"), std::string::npos);
+}
+
+TEST(ModbusFrame, AnExceptionIsNamed) {
+  const auto read = modbus::read_holding_registers(7, 1, 40000, 3);
+  const Bytes bytes{0, 7, 0, 0, 0, 3, 1, 0x83, 0x02};
+  const auto reply = modbus::check_reply(read, bytes);
+  EXPECT_EQ(reply.exception_code, 2);
+  EXPECT_NE(reply.error.find("Modbus exception 2 (illegal data address) to function 0x03 at address 40000"),
+            std::string::npos)
+      << reply.error;
+  EXPECT_EQ(modbus::exception_name(99), "exception 99");
 }

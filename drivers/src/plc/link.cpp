@@ -2,6 +2,8 @@
 #include "fettle/drivers/plc_link.hpp"
 
 #include <modbus.h>
+#include <poll.h>
+#include <sys/socket.h>
 
 #include <algorithm>
 #include <array>
@@ -21,6 +23,7 @@
 #include <boost/asio/post.hpp>
 
 #include "fettle/core/log.hpp"
+#include "fettle/drivers/modbus_frame.hpp"
 
 namespace fettle::drivers::plc {
 
@@ -32,6 +35,7 @@ std::string_view name(LinkDownReason r) {
     case LinkDownReason::connect_failed: return "connect_failed";
     case LinkDownReason::timeout: return "timeout";
     case LinkDownReason::io_error: return "io_error";
+    case LinkDownReason::bad_reply: return "bad_reply";
     case LinkDownReason::heartbeat_stale: return "heartbeat_stale";
   }
   return "?";
@@ -126,6 +130,7 @@ struct Link::Impl {
   bool result_unacked = false;  // a published result the PLC has not acknowledged yet
   std::vector<RangeViolation> active_violations;
   int attempt = 0;  // reconnect attempts in this outage
+  std::uint16_t transaction = 0;  // the MBAP transaction id of the last request
   LinkStatus st;    // published to shared_status after each step
 
   void post(Event e) {
@@ -269,15 +274,55 @@ struct Link::Impl {
     }
   }
 
-  void poll_once() {
-    std::array<std::uint16_t, reg::plc_block_size> regs{};
-    const auto started = Clock::now();
-    const int rc = modbus_read_registers(ctx, options.register_base + reg::plc_block_start, reg::plc_block_size,
-                                         regs.data());
-    if (rc != reg::plc_block_size) {
-      io_failure("reading the PLC block", rc == -1 ? errno : EMBBADDATA);
-      return;
+  /// Sends `request` on libmodbus's socket, lets libmodbus read the reply off the stream and
+  /// checks every field of it (modbus_frame.hpp says why libmodbus's own checks are not
+  /// enough). The reply, or nothing when the link dropped, having said why.
+  std::optional<modbus::Reply> transact(const modbus::Request& request, const char* what, Clock::time_point deadline) {
+    const int fd = modbus_get_socket(ctx);
+    std::size_t sent = 0;
+    while (sent < request.adu.size()) {
+      const auto n = ::send(fd, request.adu.data() + sent, request.adu.size() - sent, MSG_NOSIGNAL);
+      if (n > 0) {
+        sent += static_cast<std::size_t>(n);
+        continue;
+      }
+      if (n == -1 && errno == EINTR) continue;
+      if (n == -1 && (errno == EAGAIN || errno == EWOULDBLOCK)) {  // the socket is non-blocking
+        const auto left = std::chrono::duration_cast<milliseconds>(deadline - Clock::now()).count();
+        pollfd p{fd, POLLOUT, 0};
+        if (left > 0 && ::poll(&p, 1, static_cast<int>(left)) > 0) continue;
+        io_failure(what, ETIMEDOUT);
+        return std::nullopt;
+      }
+      io_failure(what, errno);
+      return std::nullopt;
     }
+    std::array<std::uint8_t, MODBUS_TCP_MAX_ADU_LENGTH> raw{};
+    const int n = modbus_receive_confirmation(ctx, raw.data());
+    if (n == -1) {
+      io_failure(what, errno);
+      return std::nullopt;
+    }
+    auto reply = modbus::check_reply(request, std::span<const std::uint8_t>(raw.data(), static_cast<std::size_t>(n)));
+    if (!reply.ok()) {
+      // An exception is the PLC refusing (wrong register_base, say); anything else is a peer
+      // that does not speak Modbus TCP as the standard says (test PlcBadPeer.*).
+      drop(reply.exception_code != 0 ? LinkDownReason::io_error : LinkDownReason::bad_reply,
+           std::string(what) + " at " + peer() + ": " + reply.error);
+      return std::nullopt;
+    }
+    return reply;
+  }
+
+  void poll_once() {
+    const auto started = Clock::now();
+    const auto read = transact(modbus::read_holding_registers(++transaction, static_cast<std::uint8_t>(options.unit_id),
+                                                              static_cast<std::uint16_t>(options.register_base + reg::plc_block_start),
+                                                              reg::plc_block_size),
+                               "reading the PLC block", started + milliseconds(options.response_timeout_ms));
+    if (!read) return;
+    std::array<std::uint16_t, reg::plc_block_size> regs{};
+    std::copy(read->registers.begin(), read->registers.end(), regs.begin());
     const auto now = Clock::now();
     // libmodbus times each byte, not the reply: a PLC dripping a byte every 150 ms answered in
     // 5.6 s and stayed "up". The whole read has response_timeout_ms (docs/plc-interface.md;
@@ -374,11 +419,11 @@ struct Link::Impl {
     }
     ++outputs.heartbeat;
     const auto block = encode_fettle_block(outputs);
-    if (modbus_write_registers(ctx, options.register_base + reg::fettle_block_start, reg::fettle_block_size,
-                               block.data()) != reg::fettle_block_size) {
-      io_failure("writing the Fettle block", errno);
+    if (!transact(modbus::write_multiple_registers(++transaction, static_cast<std::uint8_t>(options.unit_id),
+                                                   static_cast<std::uint16_t>(options.register_base + reg::fettle_block_start),
+                                                   block),
+                  "writing the Fettle block", Clock::now() + milliseconds(options.response_timeout_ms)))
       return;
-    }
     ++st.polls;
   }
 

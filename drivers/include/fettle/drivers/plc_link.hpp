@@ -35,6 +35,7 @@ enum class LinkDownReason {
   connect_failed,   ///< TCP connect refused or timed out
   timeout,          ///< a request got no reply within response_timeout_ms
   io_error,         ///< the connection broke (peer closed, reset, Modbus exception)
+  bad_reply,        ///< a reply that does not match its request (modbus_frame.hpp's checks)
   heartbeat_stale,  ///< the PLC's heartbeat did not change for heartbeat_timeout_ms
 };
 std::string_view name(LinkDownReason r);
