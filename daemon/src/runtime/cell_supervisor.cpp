@@ -38,6 +38,7 @@ void Runtime::Impl::setup() {
   auto interrupted = records.open();
   if (!interrupted) throw UserError(interrupted.error().message);
   for (const auto& id : *interrupted) log->warn("cycle {} shows as INTERRUPTED (the daemon stopped during it)", id);
+  if (!interrupted->empty()) interrupted_cycle = interrupted->back();
 
   auto weak = weak_from_this();
   auto on_plc_event = [weak](const plc::Event& e) {

@@ -57,6 +57,17 @@ void Runtime::Impl::start_cycle(int recipe_id, bool dry, bool from_plc) {
   }
   c->summary = *begun;
   if (!records.warning().empty()) c->warnings.push_back("records: " + records.warning());
+  // The PLC's request survives a restart, and the casting on the fixture may be the one the
+  // interrupted cycle left half ground: the cycle runs (a fresh scan, excess measured against
+  // the template, so nothing already ground is ground again), and says so in its report and the
+  // log, so a refusal (E505 on a flash half gone) is read for what it is (docs/daemon.md
+  // "Stopping and restarting"; test CycleFaults.TheCycleAfterAnInterruptedOneSaysTheCastingMayBeHalfGround).
+  if (from_plc && !interrupted_cycle.empty()) {
+    c->warnings.push_back("the casting may be half ground: cycle " + interrupted_cycle +
+                          " was interrupted (fettled stopped during it); this cycle scans it afresh");
+    log->warn("cycle {}: the casting may be half ground by interrupted cycle {}", c->summary.id, interrupted_cycle);
+    interrupted_cycle.clear();
+  }
   cycle = c;
   ++cycles_total;
   if (from_plc) ++cycles_in_execute;

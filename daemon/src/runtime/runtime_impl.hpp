@@ -164,6 +164,9 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   std::optional<Fault> fault;  ///< latched until a Reset
   std::shared_ptr<Cycle> cycle;
   std::optional<int> pending_recipe;
+  /// The cycle fettled found interrupted at start (the last, if several): the casting on the
+  /// fixture may be the one it left half ground. The next PLC cycle says so in its report.
+  std::string interrupted_cycle;
   bool dry_requested = false;
   long long cycles_total = 0;
   long long cycles_in_execute = 0;
