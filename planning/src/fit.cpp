@@ -57,7 +57,15 @@ std::optional<Plane> fit_plane_lsq(const std::vector<Vec3>& points) {
 }
 
 std::optional<Plane> fit_plane_ransac(const std::vector<Vec3>& points, const RansacOptions& options) {
+  return fit_plane_ransac(points, options, {});
+}
+
+std::optional<Plane> fit_plane_ransac(const std::vector<Vec3>& points, const RansacOptions& options,
+                                      const std::function<bool(std::size_t, const Vec3&)>& admit) {
   if (points.size() < 3) return std::nullopt;
+  const auto inlier = [&](const Plane& plane, std::size_t i) {
+    return std::abs(plane.signed_distance(points[i])) <= options.inlier_mm && (!admit || admit(i, plane.normal));
+  };
   std::mt19937_64 rng(options.seed);
   const auto subset = scoring_subset(points.size());
   std::optional<Plane> best;
@@ -70,20 +78,22 @@ std::optional<Plane> fit_plane_ransac(const std::vector<Vec3>& points, const Ran
     Plane cand{nrm.normalized(), 0.0, 0};
     cand.d = -cand.normal.dot(points[s[0]]);
     std::size_t count = 0;
-    for (auto i : subset) count += std::abs(cand.signed_distance(points[i])) <= options.inlier_mm ? 1 : 0;
+    for (auto i : subset) count += inlier(cand, i) ? 1 : 0;
     if (count > best_count) best_count = count, best = cand;
   }
-  if (!best) return fit_plane_lsq(points);
+  if (!best) return admit ? std::nullopt : fit_plane_lsq(points);
   for (int refine = 0; refine < 2; ++refine) {
     std::vector<Vec3> inl;
-    for (const auto& p : points)
-      if (std::abs(best->signed_distance(p)) <= options.inlier_mm) inl.push_back(p);
+    for (std::size_t i = 0; i < points.size(); ++i)
+      if (inlier(*best, i)) inl.push_back(points[i]);
     auto refit = fit_plane_lsq(inl);
     if (!refit) break;
+    // the refit keeps the sampled plane's orientation (admit may depend on the normal's sign)
+    if (admit && refit->normal.dot(best->normal) < 0) refit->normal = -refit->normal, refit->d = -refit->d;
     best = refit;
   }
   std::size_t count = 0;
-  for (const auto& p : points) count += std::abs(best->signed_distance(p)) <= options.inlier_mm ? 1 : 0;
+  for (std::size_t i = 0; i < points.size(); ++i) count += inlier(*best, i) ? 1 : 0;
   best->inliers = count;
   return best;
 }

@@ -208,16 +208,36 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
   const auto& tool = *in.tool;
   RansacOptions plane_opts = settings.ransac;
   plane_opts.inlier_mm = std::max(plane_opts.inlier_mm, 1.0);
-  auto plane = fit_plane_ransac(in.excess_points_part, plane_opts);
-  if (!plane) return region_error(region.name, "fit", "no parting plane could be fitted to the excess points");
+  // A parting line's fin stands out of a wall the parting plane cuts: the template surface
+  // nearest a fin point faces along the plane (its normal within 30 degrees of it). Excess on a
+  // face the plane would lie on is not flash: the body's form deviation read as excess (0.5 mm
+  // over the body's top under a flange) outnumbers the fin and drew the plane, and then the ring,
+  // onto that face (test RingPlan.FormDeviationOnTheFaceBelowDoesNotTakeThePartingPlane).
+  std::vector<Vec3> wall_normal(in.excess_points_part.size());
+  for (std::size_t i = 0; i < wall_normal.size(); ++i)
+    wall_normal[i] = sdf_gradient(in.template_sdf, in.excess_points_part[i]);
+  const auto against_a_wall = [&](std::size_t i, const Vec3& n) {
+    return std::abs(wall_normal[i].dot(n)) <= 0.5 * std::max(1e-9, wall_normal[i].norm());
+  };
+  auto plane = fit_plane_ransac(in.excess_points_part, plane_opts, against_a_wall);
+  if (!plane)
+    return region_error(region.name, "fit",
+                        "no parting plane could be fitted to the " + std::to_string(in.excess_points_part.size()) +
+                            " excess points standing out of a template wall; check the region's ROI and the scan");
   if (plane->normal.z() < 0) plane->normal = -plane->normal, plane->d = -plane->d;
   // The ring is fitted to the flash on the parting plane only: excess elsewhere in the ROI
   // (the body's form deviation read as excess, 15 mm below a flange's fin) pulled the ellipse
   // off the flange when the camera saw a short arc of fin.
   std::vector<Vec3> pts;
   pts.reserve(in.excess_points_part.size());
-  for (const auto& p : in.excess_points_part)
-    if (std::abs(plane->signed_distance(p)) <= plane_opts.inlier_mm) pts.push_back(p);
+  for (std::size_t i = 0; i < in.excess_points_part.size(); ++i)
+    if (std::abs(plane->signed_distance(in.excess_points_part[i])) <= plane_opts.inlier_mm &&
+        against_a_wall(i, plane->normal))
+      pts.push_back(in.excess_points_part[i]);
+  if (pts.size() < 5)
+    return region_error(region.name, "fit",
+                        "only " + std::to_string(pts.size()) +
+                            " excess points stand out of a template wall on the parting plane: no flash to fit a ring to");
   plan.plane = *plane;
   const Vec3 w = plane->normal;
   Vec3 centroid = Vec3::Zero();

@@ -66,6 +66,24 @@ TEST(PlaneFit, IgnoresOutliersAndAveragesNoise) {
   EXPECT_GT(std::acos(std::min(1.0, std::abs(lsq->normal.dot(normal.normalized())))), 1.0 * kPi / 180.0);
 }
 
+// Two planes, the larger one's points not admitted: the fit finds the smaller, admitted one, and
+// counts only admitted inliers.
+TEST(PlaneFit, OnlyAdmittedPointsMakeThePlane) {
+  auto pts = plane_points(Vec3(0, 0, 1), -35.0, 3000, 0.0, 0.0, 3);  // the larger: z = 35
+  const std::size_t below = pts.size();
+  const auto fin = plane_points(Vec3(0, 0, 1), -50.0, 600, 0.0, 0.0, 4);  // the smaller: z = 50
+  pts.insert(pts.end(), fin.begin(), fin.end());
+  const auto plain = fit_plane_ransac(pts, {0.5, 200, 1});
+  ASSERT_TRUE(plain);
+  EXPECT_NEAR(std::abs(plain->d), 35.0, 0.01) << "without admission the larger plane wins";
+  const auto admitted = fit_plane_ransac(pts, {0.5, 200, 1}, [&](std::size_t i, const Vec3&) { return i >= below; });
+  ASSERT_TRUE(admitted);
+  EXPECT_NEAR(std::abs(admitted->d), 50.0, 0.01);
+  EXPECT_EQ(admitted->inliers, 600U);
+  EXPECT_FALSE(fit_plane_ransac(pts, {0.5, 50, 1}, [](std::size_t, const Vec3&) { return false; }))
+      << "nothing admitted: no plane, never a least-squares guess through everything";
+}
+
 TEST(LineFit, RecoversAnExactLineAndRobustlyANoisyOne) {
   const Vec3 p0(-95, -70, 36), dir = Vec3(1, 0.05, 0.01).normalized();
   std::vector<Vec3> exact;

@@ -4,6 +4,7 @@
 // Halir & Flusser 1998) inside RANSAC followed by an inlier refit.
 // All fits are deterministic for a given `seed`.
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <vector>
 
@@ -70,6 +71,12 @@ std::optional<EllipseGeometry> ellipse_geometry(const Conic& conic);
 std::optional<Plane> fit_plane_lsq(const std::vector<Vec3>& points);
 /// RANSAC plane then a least-squares refit on the inliers.
 std::optional<Plane> fit_plane_ransac(const std::vector<Vec3>& points, const RansacOptions& options = {});
+/// The same, where point i is an inlier of a plane with unit normal n only if it is near the
+/// plane and `admit(i, n)` holds: the fit finds the plane of the points that belong to it by
+/// more than their position (a parting line's fin against a wall the plane cuts, not a face
+/// the plane lies on). The refit and `inliers` use the admitted inliers.
+std::optional<Plane> fit_plane_ransac(const std::vector<Vec3>& points, const RansacOptions& options,
+                                      const std::function<bool(std::size_t, const Vec3&)>& admit);
 
 std::optional<Line> fit_line_lsq(const std::vector<Vec3>& points);
 std::optional<Line> fit_line_ransac(const std::vector<Vec3>& points, const RansacOptions& options = {});
