@@ -70,13 +70,21 @@ std::optional<Plane> fit_plane_ransac(const std::vector<Vec3>& points, const Ran
   const auto subset = scoring_subset(points.size());
   std::optional<Plane> best;
   std::size_t best_count = 0;
-  for (int it = 0; it < options.iterations; ++it) {
+  // With an admission test a hypothesis counts only when its own three points are admitted: the
+  // points the plane is for may be a small share (a fin among a body's form deviation, 1 point
+  // in 7), and samples of the rest make planes that admit nothing. Up to 100 draws per
+  // hypothesis are made to find `iterations` of them.
+  const long max_draws = admit ? 100L * options.iterations : options.iterations;
+  int hypotheses = 0;
+  for (long draw = 0; draw < max_draws && hypotheses < options.iterations; ++draw) {
     std::array<std::size_t, 3> s{};
     if (!draw_sample(rng, points.size(), s)) continue;
     const Vec3 nrm = (points[s[1]] - points[s[0]]).cross(points[s[2]] - points[s[0]]);
     if (nrm.norm() < 1e-9) continue;
     Plane cand{nrm.normalized(), 0.0, 0};
     cand.d = -cand.normal.dot(points[s[0]]);
+    if (admit && !(admit(s[0], cand.normal) && admit(s[1], cand.normal) && admit(s[2], cand.normal))) continue;
+    ++hypotheses;
     std::size_t count = 0;
     for (auto i : subset) count += inlier(cand, i) ? 1 : 0;
     if (count > best_count) best_count = count, best = cand;
