@@ -84,6 +84,23 @@ TEST(PlaneFit, OnlyAdmittedPointsMakeThePlane) {
       << "nothing admitted: no plane, never a least-squares guess through everything";
 }
 
+// The admitted points one in ten: a plain RANSAC of 200 samples draws three of them in about
+// one run in five; hypotheses from samples the plane would not admit are not counted, so every
+// run finds the plane.
+TEST(PlaneFit, AFewAdmittedPointsAmongManyAreFoundInEveryRun) {
+  auto pts = plane_points(Vec3(0.1, 0, 1), -35.0, 5400, 0.0, 0.0, 5);
+  const std::size_t below = pts.size();
+  const auto fin = plane_points(Vec3(0, 0, 1), -50.0, 600, 0.0, 0.0, 6);
+  pts.insert(pts.end(), fin.begin(), fin.end());
+  const auto admit = [&](std::size_t i, const Vec3& n) { return i >= below && std::abs(n.z()) > 0.99; };
+  for (std::uint64_t seed = 1; seed <= 10; ++seed) {
+    const auto plane = fit_plane_ransac(pts, {0.5, 200, seed}, admit);
+    ASSERT_TRUE(plane) << "seed " << seed;
+    EXPECT_NEAR(std::abs(plane->d), 50.0, 0.01) << "seed " << seed;
+    EXPECT_EQ(plane->inliers, 600U) << "seed " << seed;
+  }
+}
+
 TEST(LineFit, RecoversAnExactLineAndRobustlyANoisyOne) {
   const Vec3 p0(-95, -70, 36), dir = Vec3(1, 0.05, 0.01).normalized();
   std::vector<Vec3> exact;
