@@ -30,6 +30,7 @@ void read_vision(TableReader& root, VisionSettings& v) {
     t->number("min_part_fitness", v.min_part_fitness, {0.0, 1.0});
     t->integer("min_region_points", v.min_region_points, {3, 100'000'000});
     t->integer("excess_min_cluster_points", v.excess_min_cluster_points, {1, 1'000'000});
+    t->number("form_deviation_mm", v.form_deviation_mm, {0.0, 5.0});
     t->boolean("cache", v.cache);
   }
 }

@@ -838,6 +838,27 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
   return T_base_tool * T_flange_tool.inverse();
 }
 
+namespace {
+
+/// The input with the template's surface raised by the casting's own form offset where that is
+/// positive (see RegionInput::form_offset_mm): the passes that end on a face end on the
+/// casting's face, which stands up to the form deviation over the nominal.
+RegionInput on_the_castings_face(const RegionInput& in) {
+  if (!in.form_offset_mm) return in;
+  RegionInput out = in;
+  const auto base = in.template_sdf;
+  const auto offset = in.form_offset_mm;
+  const auto raise = [offset](const Vec3& p) { return std::max(0.0, offset(p)); };
+  out.template_sdf = SignedDistance([base, raise](const Vec3& p) { return base(p) - raise(p); },
+                                    [base, raise](const Vec3& p, double near_mm) {
+                                      const double r = raise(p);
+                                      return base.near(p, near_mm + r) - r;
+                                    });
+  return out;
+}
+
+}  // namespace
+
 Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& settings) {
   if (in.region == nullptr || in.tool == nullptr || !in.template_sdf)
     return Error{"planning.input", "a region input lacks its region, tool or template (a bug in the caller)"};
@@ -856,11 +877,12 @@ Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& set
   switch (in.region->type) {
     case config::RegionType::ring_flash:
     case config::RegionType::circle_flash:
+      // a flash's loop follows the wall, whose form the camera does not see from above
       return plan_flash_loop(in, settings, std::move(plan));
     case config::RegionType::riser:
-      return plan_riser(in, settings, std::move(plan));
+      return plan_riser(on_the_castings_face(in), settings, std::move(plan));
     case config::RegionType::straight_flash:
-      return plan_straight(in, settings, std::move(plan));
+      return plan_straight(on_the_castings_face(in), settings, std::move(plan));
   }
   return region_error(plan.region, "input", "unknown region type");
 }

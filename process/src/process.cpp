@@ -175,6 +175,10 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     in.excess_points_part.reserve(rr.excess.points.size());
     for (const auto& p : rr.excess.points) in.excess_points_part.push_back(T_part_region * p.cast<double>());
     in.template_sdf = loaded.template_sdf;
+    if (rr.excess.form.fitted) {
+      const auto form = rr.excess.form;  // region template frame ~ part frame (within the region's fit)
+      in.form_offset_mm = [form](const Vec3& p) { return form.at(p.x(), p.y()); };
+    }
     inputs.push_back(std::move(in));
   }
 

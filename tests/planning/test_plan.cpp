@@ -80,6 +80,35 @@ TEST(RiserPlan, LayersCoverTheFootprintAndLeaveTheAllowance) {
 // the raster leaves out the points there that cover no material and lifts over the gap. Material under an unreachable point is
 // left when it is no higher than leave_unreachable_mm (RegionPlan::left_mm says so), else it is an
 // error naming it.
+// A casting whose pad stands 0.3 mm (+ 0.005 mm per mm in x) over the nominal: the last
+// layer ends on the casting's own face, not 0.3 mm into it at the nominal's level; where the
+// casting is below the nominal the template stays the floor.
+TEST(RiserPlan, TheLastPassEndsOnTheCastingsOwnFaceNotTheNominal) {
+  auto scene = make_scene();
+  RegionInput in = scene.inputs[1];
+  in.form_offset_mm = [](const Vec3& p) { return 0.3 + 0.005 * (p.x() + 82.0); };
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  const int last = plan->segments - 1;
+  std::size_t checked = 0;
+  for (const auto& p : plan->points) {
+    if (p.segment != last || p.kind != MoveKind::grind) continue;
+    const Vec3& x = p.T_base_tool.position_mm;
+    const double face = 45.0 + std::max(0.0, 0.3 + 0.005 * (x.x() + 82.0));
+    EXPECT_NEAR(x.z(), face + 0.05, 0.02) << "at x = " << x.x();
+    ++checked;
+  }
+  EXPECT_GT(checked, 100U);
+  in.form_offset_mm = [](const Vec3&) { return -0.4; };
+  const auto below = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(below) << below.error().message;
+  for (const auto& p : below->points) {
+    if (p.segment == below->segments - 1 && p.kind == MoveKind::grind) {
+      EXPECT_NEAR(p.T_base_tool.position_mm.z(), 45.05, 1e-3) << "never below the template";
+    }
+  }
+}
+
 TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) {
   auto scene = make_scene();
   RegionInput in = scene.inputs[1];

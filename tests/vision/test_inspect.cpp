@@ -299,6 +299,38 @@ TEST(Excess, ABumpOnAPlaneHasItsVolumeAndHeight) {
   for (const auto h : ex.heights_mm) EXPECT_GT(h, 0.2f);
 }
 
+// A casting whose face stands 0.3-0.5 mm over the nominal (a smooth form deviation, a tilt
+// here) with a bump of material on it: against the nominal the whole face is "material";
+// against the casting's own face only the bump is, and the plane of offsets is the tilt's.
+TEST(Excess, TheCastingsFormDeviationIsNotMaterial) {
+  const auto t = flat_template();
+  Cloud scene;
+  std::mt19937_64 rng(3);
+  std::normal_distribution<float> noise(0.0f, 0.02f);
+  const auto face = [](float x, float y) { return 0.4f + 0.005f * x - 0.002f * y; };
+  for (float x = -20; x <= 20; x += 0.25f)
+    for (float y = -20; y <= 20; y += 0.25f) {
+      const bool bump = std::abs(x - 6) <= 3 && std::abs(y) <= 3;
+      scene.points.emplace_back(x, y, face(x, y) + (bump ? 1.5f : 0.0f) + noise(rng));
+    }
+  ExcessSettings nominal;
+  const auto against_nominal = measure_excess(t, scene, nominal);
+  EXPECT_GT(against_nominal.points.size(), scene.size() / 2) << "the face itself reads as material";
+  EXPECT_FALSE(against_nominal.form.fitted);
+
+  ExcessSettings own = nominal;
+  own.form_deviation_mm = 0.5;
+  const auto ex = measure_excess(t, scene, own);
+  ASSERT_TRUE(ex.form.fitted);
+  EXPECT_NEAR(ex.form.at_origin_mm, 0.4, 0.01);
+  EXPECT_NEAR(ex.form.per_mm_x, 0.005, 0.0005);
+  EXPECT_NEAR(ex.form.per_mm_y, -0.002, 0.0005);
+  EXPECT_LT(ex.form.rms_mm, 0.03);
+  const std::size_t bump_points = 25 * 25;  // 6 x 6 mm at 0.25 mm
+  EXPECT_NEAR(static_cast<double>(ex.points.size()), static_cast<double>(bump_points), 0.1 * bump_points);
+  for (const auto& p : ex.points) EXPECT_LE(std::abs(p.x() - 6.0f), 3.3f) << "material off the bump";
+}
+
 // A scan voxelized in its own frame has the template's pitch but not its grid, and the voxels
 // on the rim average the top with the floor around it. Counting the template patches that own
 // a material point measures this disc 3 % large (the simulator's riser scans 2-10 % small);

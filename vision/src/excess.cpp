@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <Eigen/Cholesky>
+
 #include <pcl/search/kdtree.h>
 #include <pcl/segmentation/extract_clusters.h>
 
@@ -29,6 +31,79 @@ std::vector<float> signed_distances(const PreparedCloud& templ, const std::vecto
   return out;
 }
 
+namespace {
+
+/// The robust plane of offsets (see FormOffset): least squares on (1, x, y), then twice again
+/// on the points within 3 robust sigmas (at least 0.05 mm) of it. Points on one line or fewer
+/// than 30 give the median offset alone; fewer than 10, nothing.
+FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, const std::vector<int>& owner,
+                           const std::vector<float>& height, double form_deviation_mm) {
+  FormOffset f;
+  struct Sample { double x, y, h; };
+  std::vector<Sample> face;
+  for (std::size_t i = 0; i < owner.size(); ++i) {
+    if (owner[i] < 0 || std::abs(height[i]) > form_deviation_mm) continue;
+    if (T.fine.normals[static_cast<std::size_t>(owner[i])].z() < 0.8f) continue;  // upward faces only
+    face.push_back({scene.points[i].x(), scene.points[i].y(), height[i]});
+  }
+  if (face.size() < 10) return f;
+  const auto median_of = [](std::vector<double> v) {
+    const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+    std::nth_element(v.begin(), mid, v.end());
+    return *mid;
+  };
+  std::vector<char> keep(face.size(), 1);
+  for (int round = 0; round < 3; ++round) {
+    Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    Eigen::Vector2d mean = Eigen::Vector2d::Zero();
+    std::vector<double> hs;
+    for (std::size_t k = 0; k < face.size(); ++k)
+      if (keep[k]) mean += Eigen::Vector2d(face[k].x, face[k].y), hs.push_back(face[k].h);
+    if (hs.size() < 10) break;
+    mean /= static_cast<double>(hs.size());
+    for (std::size_t k = 0; k < face.size(); ++k) {
+      if (!keep[k]) continue;
+      const Eigen::Vector3d a(1.0, face[k].x - mean.x(), face[k].y - mean.y());
+      A += a * a.transpose();
+      b += a * face[k].h;
+    }
+    // a plane needs the points spread in x and y (centred moments of a few mm at least)
+    const double n = static_cast<double>(hs.size());
+    const bool planar = hs.size() >= 30 && A(1, 1) / n > 4.0 && A(2, 2) / n > 4.0 &&
+                        A.bottomRightCorner<2, 2>().determinant() / (n * n) > 16.0;
+    if (planar) {
+      const Eigen::Vector3d c = A.ldlt().solve(b);
+      f.per_mm_x = c(1), f.per_mm_y = c(2);
+      f.at_origin_mm = c(0) - c(1) * mean.x() - c(2) * mean.y();
+    } else {
+      f.per_mm_x = f.per_mm_y = 0.0;
+      f.at_origin_mm = median_of(hs);
+    }
+    f.fitted = true;
+    std::vector<double> res;
+    for (std::size_t k = 0; k < face.size(); ++k)
+      res.push_back(std::abs(face[k].h - f.at(face[k].x, face[k].y)));
+    std::vector<double> kept_res;
+    for (std::size_t k = 0; k < face.size(); ++k)
+      if (keep[k]) kept_res.push_back(res[k]);
+    const double gate = std::max(0.05, 3.0 * 1.4826 * median_of(kept_res));
+    for (std::size_t k = 0; k < face.size(); ++k) keep[k] = res[k] <= gate ? 1 : 0;
+  }
+  double ss = 0.0;
+  f.points = 0;
+  for (std::size_t k = 0; k < face.size(); ++k)
+    if (keep[k]) {
+      const double r = face[k].h - f.at(face[k].x, face[k].y);
+      ss += r * r;
+      ++f.points;
+    }
+  f.rms_mm = f.points > 0 ? std::sqrt(ss / static_cast<double>(f.points)) : 0.0;
+  return f;
+}
+
+}  // namespace
+
 ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_template, const ExcessSettings& settings) {
   ExcessMaterial out;
   const auto& T = templ.impl();
@@ -47,8 +122,15 @@ ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_
       height[i] = T.fine.normals[k].dot(p - T.fine.points[k]);
     }
   });
+  // 1b. The casting's own surface: with a form deviation of up to +-F the body itself stands up
+  //     to F over the nominal, and measured against the nominal it would be "material" (0.5 mm
+  //     of it over a whole face beside a riser). The offsets of the points on the template's
+  //     upward faces within F of it give a plane of offsets; material stands out of that.
+  if (settings.form_deviation_mm > 0.0) out.form = fit_form_offset(T, scene_in_template, owner, height, settings.form_deviation_mm);
   const auto candidate = [&](std::size_t i) {
-    return owner[i] >= 0 && height[i] > settings.threshold_mm && height[i] <= settings.max_height_mm;
+    const auto& p = scene_in_template.points[i];
+    return owner[i] >= 0 && height[i] - out.form.at(p.x(), p.y()) > settings.threshold_mm &&
+           height[i] <= settings.max_height_mm;
   };
   std::vector<std::size_t> cand;
   for (std::size_t i = 0; i < owner.size(); ++i)

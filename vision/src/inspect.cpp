@@ -467,6 +467,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
       ExcessSettings es;
       es.threshold_mm = rt.region.excess_threshold_mm;
       es.min_cluster_points = vs.excess_min_cluster_points;
+      es.form_deviation_mm = vs.form_deviation_mm;
       const Cloud local_part = transformed(local, r->T_scene_template.inverse());
       const Cloud inside = crop_box(local_part, Transform::Identity(), box_min(rt.region, 0.0), box_max(rt.region, 0.0));
       rr.excess = measure_excess(rt.cloud, inside, es);

@@ -33,6 +33,12 @@ struct VisionSettings {
   int min_region_points = 200;         ///< a region with fewer scene points fails
   // excess material
   int excess_min_cluster_points = 10;  ///< smaller clusters of excess points are noise
+  /// The body's form deviation a casting may have (+-, smooth): in each region, the template
+  /// faces the scan sees within this of the template give the casting's own surface there (a
+  /// plane of offsets fitted to them), and material is what stands out of that surface, not out
+  /// of the nominal. 0: material is measured against the nominal template. docs/vision.md,
+  /// "Excess relative to the casting".
+  double form_deviation_mm = 0.5;
   bool cache = true;                   ///< cache template data on disk next to the recipe
 };
 

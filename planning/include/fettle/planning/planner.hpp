@@ -58,6 +58,12 @@ struct RegionInput {
   Transform T_base_part = Transform::Identity();  ///< e.g. T_base_camera * T_camera_part
   std::vector<Vec3> excess_points_part;            ///< material above the template, part frame
   SignedDistance template_sdf;                     ///< the template surface, part frame
+  /// The casting's own surface over the template's faces here, mm along the face normal (vision's
+  /// FormOffset; empty: the nominal). A riser's and a straight flash's passes end that far over
+  /// the template where it is positive, so they end on the casting's own face; never below the
+  /// template, which stays what every pose keeps its clearance from (test
+  /// RiserPlan.TheLastPassEndsOnTheCastingsOwnFaceNotTheNominal).
+  std::function<double(const Vec3& p_part)> form_offset_mm;
 };
 
 /// Planner limits and tunables (safety limits come from the cell's [safety]).

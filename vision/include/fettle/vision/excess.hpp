@@ -14,6 +14,23 @@ struct ExcessSettings {
   double max_height_mm = 80.0;      ///< farther points are not material of this region (clutter, other parts)
   int min_cluster_points = 10;      ///< smaller clusters are noise
   double cluster_tolerance_mm = 0.0;  ///< 0 = 3 * scene spacing
+  /// The body's form deviation (+-): see config::VisionSettings::form_deviation_mm. 0 = off.
+  double form_deviation_mm = 0.0;
+};
+
+/// The casting's own surface against the template in one region: offset(x, y) = at_origin_mm
+/// + per_mm_x * x + per_mm_y * y (part frame, mm along the template's face normal), a robust
+/// plane fitted to the offsets of the scan points on the template's upward faces that lie
+/// within the form deviation of it. Smooth form deviation (sand-cast iron: wavelengths of 100
+/// mm and more) is close to a plane over a region's ROI.
+struct FormOffset {
+  bool fitted = false;
+  double at_origin_mm = 0.0, per_mm_x = 0.0, per_mm_y = 0.0;
+  std::size_t points = 0;  ///< the face points the plane was fitted to (after trimming)
+  double rms_mm = 0.0;     ///< their residual
+  [[nodiscard]] double at(double x_mm, double y_mm) const {
+    return fitted ? at_origin_mm + per_mm_x * x_mm + per_mm_y * y_mm : 0.0;
+  }
 };
 
 struct ExcessMaterial {
@@ -22,6 +39,7 @@ struct ExcessMaterial {
   double volume_mm3 = 0.0;
   double max_height_mm = 0.0;
   double footprint_mm2 = 0.0;           ///< template surface area under the excess
+  FormOffset form;                      ///< the casting's own surface (settings.form_deviation_mm > 0)
 };
 
 /// Scene points already in the template frame against a prepared template (fine points,
