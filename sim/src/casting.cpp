@@ -378,6 +378,7 @@ double Casting::rms_distance_to_surface_mm(const std::vector<Eigen::Vector3f>& p
   return n > 0 ? std::sqrt(sum / static_cast<double>(n)) : 0.0;
 }
 double Casting::distance_to_golden_mm(const Vec3& p_part) const { return model_->nominal.distance(p_part); }
+double Casting::distance_to_body_mm(const Vec3& p_part) const { return model_->body.distance(p_part); }
 double Casting::golden_top_z_mm(double x_mm, double y_mm) const { return model_->nominal_top(x_mm, y_mm); }
 void Casting::take_off_fixture() { model_->on_fixture = false; }
 bool Casting::on_fixture() const { return model_->on_fixture; }

@@ -76,6 +76,9 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
     EXPECT_EQ(r.at("plan").contains("material_left_at_mm"), left > 0.0) << name;
     EXPECT_GE(r.at("plan").at("material_left_length_mm").get<double>(), 0.0) << name;
     EXPECT_TRUE(r.contains("template_comparison")) << name;
+    ASSERT_TRUE(r.contains("casting_comparison")) << name;  // the same points against the casting's own body
+    EXPECT_EQ(r.at("casting_comparison").at("roi_points"), r.at("template_comparison").at("roi_points")) << name;
+    EXPECT_LE(r.at("casting_comparison").at("share_over_0_5_pct").get<double>(), 0.1) << name;
     // where the vision stage put the region: its template within 0.2 mm RMS of the casting's
     // true surface (0.06-0.12 mm on this casting with the recipe's form deviation), the pose
     // errors at the ROI centre given

@@ -88,6 +88,34 @@ fettle::config::PartRecipe coarse_pump_body() {
   return recipe;
 }
 
+// The casting comparison of `fettle-sim trial` measures against the casting's own body: a
+// point on a perfectly fettled casting (no flash, its form deviation kept) is on it, however far
+// the form deviation puts it from the golden surface.
+TEST(SimGeometry, ThePerfectlyFettledCastingIsOnItsOwnBodyNotOnTheGolden) {
+  auto recipe = coarse_pump_body();
+  recipe.geometry.variation.form_deviation_mm = 0.5;
+  Casting c = Casting::make(recipe, 7);
+  c.remove_all_material();
+  double worst_body = 0.0, worst_golden = 0.0;
+  std::size_t n = 0;
+  for (double y = -60; y <= 60; y += 5.0)
+    for (double x = -100; x <= 100; x += 5.0) {
+      const double z = c.surface_z_mm(x, y), golden = c.golden_top_z_mm(x, y);
+      if (std::isnan(z) || std::isnan(golden)) continue;
+      bool smooth = true;  // away from walls (the distance there is to the wall)
+      for (double dx : {-3.0, 3.0})
+        for (double dy : {-3.0, 3.0}) smooth = smooth && std::abs(c.golden_top_z_mm(x + dx, y + dy) - golden) < 1.0;
+      if (!smooth) continue;
+      ++n;
+      const fettle::Vec3 p(x, y, z);
+      worst_body = std::max(worst_body, c.distance_to_body_mm(p));
+      worst_golden = std::max(worst_golden, c.distance_to_golden_mm(p));
+    }
+  EXPECT_GT(n, 300U);
+  EXPECT_LT(worst_body, 0.02);
+  EXPECT_GT(worst_golden, 0.3) << "the form deviation is there";
+}
+
 // The body of a casting differs from the golden one by its smooth form deviation: within
 // +-form_deviation_mm everywhere, and really there (over half the amplitude somewhere); none when
 // the recipe sets 0.

@@ -106,6 +106,9 @@ class Casting {
                                                   const Transform& T_part_points, std::size_t stride = 1) const;
   /// Distance of a part-frame point to the golden surface.
   [[nodiscard]] double distance_to_golden_mm(const Vec3& p_part) const;
+  /// Distance of a part-frame point to this casting's own body: the golden surface with this
+  /// casting's form deviation, without flash or riser (what a perfect fettling leaves).
+  [[nodiscard]] double distance_to_body_mm(const Vec3& p_part) const;
   /// Top of the golden body at (x, y), part frame (NaN off the body).
   [[nodiscard]] double golden_top_z_mm(double x_mm, double y_mm) const;
   /// Removes every bit of flash and riser exactly (an oracle "perfect grind", no tool).
