@@ -175,6 +175,20 @@ struct TypeStats {
   }
 };
 
+/// Per region type: its castings, ROI points and shares (summary.json).
+json type_stats_json(const std::map<std::string, TypeStats>& stats) {
+  json types = json::object();
+  for (const auto& [type, t] : stats)
+    types[type] = {{"seeds", t.seeds},
+                   {"roi_points", t.roi_points},
+                   {"share_over_0_3_pct", pct(t.over_0_3, t.roi_points)},
+                   {"share_over_0_5_pct", pct(t.over_0_5, t.roi_points)},
+                   {"worst_share_over_0_3_pct", t.worst_03_pct},
+                   {"worst_share_over_0_5_pct", t.worst_05_pct},
+                   {"max_residual_mm", t.max_residual_mm}};
+  return types;
+}
+
 std::string table(const std::string& title, const std::map<std::string, TypeStats>& stats, bool paper_column) {
   std::ostringstream s;
   char line[320];
@@ -697,25 +711,8 @@ int trial(const Args& a) {
   summary["failures"] = failures;
   summary["max_gouge_depth_mm"] = max_gouge;
   summary["acceptance"] = pass;
-  json types = json::object();
-  for (const auto& [type, t] : t1)
-    types[type] = {{"seeds", t.seeds},
-                   {"roi_points", t.roi_points},
-                   {"share_over_0_3_pct", pct(t.over_0_3, t.roi_points)},
-                   {"share_over_0_5_pct", pct(t.over_0_5, t.roi_points)},
-                   {"worst_share_over_0_3_pct", t.worst_03_pct},
-                   {"worst_share_over_0_5_pct", t.worst_05_pct},
-                   {"max_residual_mm", t.max_residual_mm}};
-  summary["template_comparison"] = types;
-  json own = json::object();
-  for (const auto& [type, t] : t1b)
-    own[type] = {{"seeds", t.seeds},
-                 {"share_over_0_3_pct", pct(t.over_0_3, t.roi_points)},
-                 {"share_over_0_5_pct", pct(t.over_0_5, t.roi_points)},
-                 {"worst_share_over_0_3_pct", t.worst_03_pct},
-                 {"worst_share_over_0_5_pct", t.worst_05_pct},
-                 {"max_residual_mm", t.max_residual_mm}};
-  summary["casting_comparison"] = own;
+  summary["template_comparison"] = type_stats_json(t1);
+  summary["casting_comparison"] = type_stats_json(t1b);
   summary["seed_results"] = seeds_json;
   (void)fettle::write_file_atomic(a.out / "summary.json", summary.dump(2) + "\n");
   (void)fettle::write_file_atomic(a.out / "summary.txt", report);
