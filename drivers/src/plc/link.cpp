@@ -192,7 +192,6 @@ struct Link::Impl {
     modbus_set_response_timeout(ctx, to_us / 1000000U, to_us % 1000000U);
     modbus_set_byte_timeout(ctx, to_us / 1000000U, to_us % 1000000U);
     modbus_set_error_recovery(ctx, MODBUS_ERROR_RECOVERY_NONE);  // we reconnect ourselves
-    modbus_set_slave(ctx, options.unit_id);
     if (modbus_connect(ctx) == -1) {
       const std::string err = modbus_strerror(errno);
       modbus_free(ctx);
@@ -321,8 +320,7 @@ struct Link::Impl {
                                                               reg::plc_block_size),
                                "reading the PLC block", started + milliseconds(options.response_timeout_ms));
     if (!read) return;
-    std::array<std::uint16_t, reg::plc_block_size> regs{};
-    std::copy(read->registers.begin(), read->registers.end(), regs.begin());
+    const auto& regs = read->registers;  // plc_block_size of them: check_reply saw to it
     const auto now = Clock::now();
     // libmodbus times each byte, not the reply: a PLC dripping a byte every 150 ms answered in
     // 5.6 s and stayed "up". The whole read has response_timeout_ms (docs/plc-interface.md;
