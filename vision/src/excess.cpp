@@ -53,6 +53,7 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
     return *mid;
   };
   std::vector<char> keep(face.size(), 1);
+  std::vector<double> res(face.size(), 0.0);  // |offset - plane| of every face point, last fit
   for (int round = 0; round < 3; ++round) {
     Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
     Eigen::Vector3d b = Eigen::Vector3d::Zero();
@@ -81,23 +82,18 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
       f.at_origin_mm = median_of(hs);
     }
     f.fitted = true;
-    std::vector<double> res;
-    for (std::size_t k = 0; k < face.size(); ++k)
-      res.push_back(std::abs(face[k].h - f.at(face[k].x, face[k].y)));
     std::vector<double> kept_res;
-    for (std::size_t k = 0; k < face.size(); ++k)
+    for (std::size_t k = 0; k < face.size(); ++k) {
+      res[k] = std::abs(face[k].h - f.at(face[k].x, face[k].y));
       if (keep[k]) kept_res.push_back(res[k]);
+    }
     const double gate = std::max(0.05, 3.0 * 1.4826 * median_of(kept_res));
     for (std::size_t k = 0; k < face.size(); ++k) keep[k] = res[k] <= gate ? 1 : 0;
   }
   double ss = 0.0;
   f.points = 0;
   for (std::size_t k = 0; k < face.size(); ++k)
-    if (keep[k]) {
-      const double r = face[k].h - f.at(face[k].x, face[k].y);
-      ss += r * r;
-      ++f.points;
-    }
+    if (keep[k]) ss += res[k] * res[k], ++f.points;
   f.rms_mm = f.points > 0 ? std::sqrt(ss / static_cast<double>(f.points)) : 0.0;
   return f;
 }
