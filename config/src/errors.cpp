@@ -9,6 +9,7 @@ void read_errors(TableReader& root, ErrorBudget& e) {
   if (auto t = root.table("errors", Need::required)) {
     t->number("hand_eye_mm", e.hand_eye_mm, {0.0, 10.0});
     t->number("hand_eye_deg", e.hand_eye_deg, {0.0, 5.0});
+    t->choice("hand_eye_pivot", e.hand_eye_pivot, {"fixture", "camera"});
     t->number("slide_repeatability_mm", e.slide_repeatability_mm, {0.0, 5.0});
     t->number("intrinsics_focal_pct", e.intrinsics_focal_pct, {0.0, 5.0});
     t->number("intrinsics_center_px", e.intrinsics_center_px, {0.0, 50.0});

@@ -40,7 +40,7 @@ int grind_cmd(const Args& a) {
   opt.path_bias_mm = fettle::Vec3(a.bias_mm[0], a.bias_mm[1], a.bias_mm[2]);
   opt.noise_seed = a.seed;
   // --errors: the budget's path noise, the cell's path bias and TCP error replace the options'.
-  if (budget) apply_to_grinding(draw_cell_errors(*budget, a.errors.cell_seed, scfg.intrinsics), opt);
+  if (budget) apply_to_grinding(draw_cell_errors(*budget, a.errors.cell_seed, scfg), opt);
   const auto t0 = std::chrono::steady_clock::now();
   auto ground = grind_by_region(casting, trajectory, recipe, opt, a.tool, limits, app::progress_printer());
   if (!ground) throw fettle::UserError(a.trajectory.string() + ": " + ground.error().message);

@@ -34,7 +34,7 @@ int scan(const Args& a) {
                recipe.id.c_str(), app::seconds_since(t0));
   const auto nominal = app::scanner_config(a.scanner);
   std::optional<CellErrors> errors;
-  if (budget) errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal.intrinsics);
+  if (budget) errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal);
   const Scanner scanner(errors ? true_scanner(nominal, *errors) : nominal);
   const auto& positions = nominal.photo_positions_mm;
   nlohmann::json slide_errors = nlohmann::json::array();

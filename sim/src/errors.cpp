@@ -1,6 +1,7 @@
 // The error budget applied to the simulated world (fettle/sim/errors.hpp).
 #include "fettle/sim/errors.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 
@@ -20,19 +21,34 @@ Vec3 random_direction(Rng& rng) {
 }
 }  // namespace
 
-CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cell_seed, const CameraIntrinsics& nominal) {
+Vec3 hand_eye_pivot_in_camera(const config::ErrorBudget& budget, const ScannerConfig& nominal) {
+  if (budget.hand_eye_pivot == "camera") return Vec3::Zero();
+  // The fixture's origin (base frame origin: the table top under the slide's mid position) seen
+  // from the camera at the middle of its photo positions, where a calibration's target sits.
+  double mid = 0.0;
+  if (!nominal.photo_positions_mm.empty()) {
+    const auto [lo, hi] = std::minmax_element(nominal.photo_positions_mm.begin(), nominal.photo_positions_mm.end());
+    mid = 0.5 * (*lo + *hi);
+  }
+  return nominal.T_base_camera(mid).inverse() * Vec3::Zero();
+}
+
+CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cell_seed, const ScannerConfig& nominal) {
   CellErrors e;
   e.budget = budget;
   e.cell_seed = cell_seed;
   Rng rng(cell_seed, kSalt);
-  // Hand-eye: a rigid error of exactly the budget's size in random directions.
+  // Hand-eye: a rigid error of exactly the budget's size in random directions: the translation
+  // is the error at the pivot, the rotation turns about it.
   const Vec3 t = random_direction(rng) * budget.hand_eye_mm;
   const Vec3 axis = random_direction(rng);
+  e.hand_eye_pivot_camera = hand_eye_pivot_in_camera(budget, nominal);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(budget.hand_eye_deg * std::numbers::pi / 180.0, axis).toRotationMatrix();
   e.T_nominal_true = Transform::Identity();
-  e.T_nominal_true.linear() = Eigen::AngleAxisd(budget.hand_eye_deg * std::numbers::pi / 180.0, axis).toRotationMatrix();
-  e.T_nominal_true.translation() = t;
+  e.T_nominal_true.linear() = R;
+  e.T_nominal_true.translation() = t + e.hand_eye_pivot_camera - R * e.hand_eye_pivot_camera;
   // Intrinsics: focal length off by the budget's share (either sign), centre by its size.
-  e.intrinsics_true = nominal;
+  e.intrinsics_true = nominal.intrinsics;
   const double sign = rng.uniform() < 0.5 ? -1.0 : 1.0;
   e.intrinsics_true.fx *= 1.0 + sign * budget.intrinsics_focal_pct / 100.0;
   e.intrinsics_true.fy *= 1.0 + sign * budget.intrinsics_focal_pct / 100.0;
@@ -54,6 +70,10 @@ CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cel
     }
   }
   return e;
+}
+
+double CellErrors::hand_eye_error_at_pivot_mm() const {
+  return (T_nominal_true * hand_eye_pivot_camera - hand_eye_pivot_camera).norm();
 }
 
 double CellErrors::slide_error_mm(std::uint64_t seed, std::size_t view) const {
@@ -82,7 +102,7 @@ nlohmann::json CellErrors::to_json() const {
   return {{"file", b.source.string()},
           {"cell_seed", cell_seed},
           {"budget",
-           {{"hand_eye_mm", b.hand_eye_mm}, {"hand_eye_deg", b.hand_eye_deg},
+           {{"hand_eye_mm", b.hand_eye_mm}, {"hand_eye_deg", b.hand_eye_deg}, {"hand_eye_pivot", b.hand_eye_pivot},
             {"slide_repeatability_mm", b.slide_repeatability_mm}, {"intrinsics_focal_pct", b.intrinsics_focal_pct},
             {"intrinsics_center_px", b.intrinsics_center_px}, {"path_noise_mm", b.path_noise_mm},
             {"path_bias_mm", b.path_bias_mm}, {"tcp_length_mm", b.tcp_length_mm}, {"depth_noise_mm", b.depth_noise_mm},
@@ -92,6 +112,8 @@ nlohmann::json CellErrors::to_json() const {
           {"drawn",
            {{"hand_eye_translation_mm",
              {T_nominal_true.translation().x(), T_nominal_true.translation().y(), T_nominal_true.translation().z()}},
+            {"hand_eye_pivot_camera_mm", {hand_eye_pivot_camera.x(), hand_eye_pivot_camera.y(), hand_eye_pivot_camera.z()}},
+            {"hand_eye_error_at_pivot_mm", hand_eye_error_at_pivot_mm()},
             {"hand_eye_rotation_deg", aa.angle() * 180.0 / std::numbers::pi},
             {"hand_eye_axis", {aa.axis().x(), aa.axis().y(), aa.axis().z()}},
             {"intrinsics_true", {{"fx", intrinsics_true.fx}, {"fy", intrinsics_true.fy}, {"cx", intrinsics_true.cx}, {"cy", intrinsics_true.cy}}},

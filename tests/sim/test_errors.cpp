@@ -4,6 +4,7 @@
 // drawn hand-eye error, and equals the plain capture when the budget is zero.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <numbers>
@@ -16,6 +17,8 @@
 
 using namespace fettle::sim;  // NOLINT
 using fettle::config::ErrorBudget;
+using fettle::Transform;
+using fettle::Vec3;
 
 namespace {
 
@@ -63,29 +66,31 @@ TEST(ErrorBudget, AMisspelledKeyAnOutOfRangeValueOrAnUnmodelledErrorIsRefusedWit
   EXPECT_NE(unmodelled.find("not modelled"), std::string::npos) << unmodelled;
   EXPECT_NE(refusal("[errors]\ndepth_correlated_mm = 0.03\n").find("depth_correlation_px"), std::string::npos);
   EXPECT_NE(refusal("hand_eye_mm = 0.1\n").find("errors"), std::string::npos) << "the [errors] table is required";
+  EXPECT_NE(refusal("[errors]\nhand_eye_pivot = \"robot\"\n").find("fixture"), std::string::npos) << "says the choices";
   EXPECT_TRUE(refusal("[errors]\n").empty()) << "every key is optional";
 }
 
 TEST(ErrorBudget, EveryDrawHasTheBudgetsSizeAndRepeatsPerCellSeed) {
   const auto b = realistic();
-  const CameraIntrinsics nominal;
-  const auto e = draw_cell_errors(b, 7, nominal);
-  EXPECT_NEAR(e.T_nominal_true.translation().norm(), b.hand_eye_mm, 1e-12);
+  const ScannerConfig scanner;
+  const auto& nominal = scanner.intrinsics;
+  const auto e = draw_cell_errors(b, 7, scanner);
+  EXPECT_NEAR(e.hand_eye_error_at_pivot_mm(), b.hand_eye_mm, 1e-9);
   EXPECT_NEAR(Eigen::AngleAxisd(e.T_nominal_true.linear()).angle() * 180.0 / std::numbers::pi, b.hand_eye_deg, 1e-9);
   EXPECT_NEAR(e.path_bias_mm.norm(), b.path_bias_mm, 1e-12);
   EXPECT_NEAR(std::abs(e.intrinsics_true.fx / nominal.fx - 1.0), b.intrinsics_focal_pct / 100.0, 1e-12);
   EXPECT_NEAR(std::hypot(e.intrinsics_true.cx - nominal.cx, e.intrinsics_true.cy - nominal.cy), b.intrinsics_center_px, 1e-9);
-  const auto again = draw_cell_errors(b, 7, nominal);
+  const auto again = draw_cell_errors(b, 7, scanner);
   EXPECT_TRUE(again.T_nominal_true.isApprox(e.T_nominal_true, 0.0));
   EXPECT_EQ(again.path_bias_mm, e.path_bias_mm);
-  const auto other = draw_cell_errors(b, 8, nominal);
+  const auto other = draw_cell_errors(b, 8, scanner);
   EXPECT_GT((other.path_bias_mm - e.path_bias_mm).norm(), 1e-6) << "another cell, another direction";
   const auto j = e.to_json();
   EXPECT_TRUE(j.contains("budget") && j.contains("drawn")) << j.dump();
 }
 
 TEST(ErrorBudget, SlideErrorsAreDrawnPerCaptureWithTheBudgetsSigma) {
-  const auto e = draw_cell_errors(realistic(), 3, CameraIntrinsics{});
+  const auto e = draw_cell_errors(realistic(), 3, ScannerConfig{});
   double sum = 0.0, sum2 = 0.0;
   constexpr int n = 4000;
   for (int i = 0; i < n; ++i) {
@@ -101,7 +106,7 @@ TEST(ErrorBudget, SlideErrorsAreDrawnPerCaptureWithTheBudgetsSigma) {
 }
 
 TEST(ErrorBudget, TheCorrelatedDepthErrorHasTheBudgetsRmsAndIsSmooth) {
-  const auto e = draw_cell_errors(realistic(), 11, CameraIntrinsics{});
+  const auto e = draw_cell_errors(realistic(), 11, ScannerConfig{});
   double sum2 = 0.0, step = 0.0;
   int n = 0;
   for (int v = 0; v < 1544; v += 8)
@@ -122,7 +127,7 @@ TEST(ErrorBudget, ACaptureAsTheCellGetsItIsOffByTheDrawnHandEyeError) {
   const auto nominal = sim_test::small_scanner(258, 193);
   // A zero budget: the cell gets exactly the scanner's capture and pose.
   {
-    const auto e = draw_cell_errors(ErrorBudget{}, 1, nominal.intrinsics);
+    const auto e = draw_cell_errors(ErrorBudget{}, 1, nominal);
     const Scanner scanner(true_scanner(nominal, e));
     auto plain_cfg = nominal;
     plain_cfg.noise.sigma_z_mm = 0.0;
@@ -143,7 +148,7 @@ TEST(ErrorBudget, ACaptureAsTheCellGetsItIsOffByTheDrawnHandEyeError) {
   // translation, plus its tiny rotation) from where the truth puts it.
   ErrorBudget b;
   b.hand_eye_mm = 1.0;
-  const auto e = draw_cell_errors(b, 5, nominal.intrinsics);
+  const auto e = draw_cell_errors(b, 5, nominal);
   const Scanner scanner(true_scanner(nominal, e));
   const auto cc = capture_as_cell(scanner, nominal, e, casting, 120.0, 4, 1);
   EXPECT_FALSE(cc.believed_T_base_camera.isApprox(cc.capture.truth.T_base_camera, 1e-6));
@@ -156,4 +161,43 @@ TEST(ErrorBudget, ACaptureAsTheCellGetsItIsOffByTheDrawnHandEyeError) {
   }
   EXPECT_NEAR(worst, 1.0, 1e-6);
   EXPECT_NEAR(least, 1.0, 1e-6);
+}
+
+// A calibration is fitted with its target on the fixture, so its rotation error turns about the
+// fixture: there the error is the translation alone and it grows with the distance from it. With
+// the pivot at the camera the same rotation moves the fixture by its angle x the working distance.
+TEST(ErrorBudget, TheHandEyeRotationTurnsAboutTheFixtureUnlessToldTheCamera) {
+  const auto nominal = sim_test::small_scanner(258, 193);
+  ErrorBudget b;
+  b.hand_eye_deg = 0.5;
+  const auto moved_mm = [&](const CellErrors& e, const Vec3& p_base) {
+    const Transform T_base_camera = nominal.T_base_camera(0.0);
+    const Vec3 p_cam = T_base_camera.inverse() * p_base;
+    return ((T_base_camera * (e.T_nominal_true * p_cam)) - p_base).norm();
+  };
+  double mid = 0.0;
+  if (!nominal.photo_positions_mm.empty())
+    mid = 0.5 * (*std::min_element(nominal.photo_positions_mm.begin(), nominal.photo_positions_mm.end()) +
+                 *std::max_element(nominal.photo_positions_mm.begin(), nominal.photo_positions_mm.end()));
+  const double lever_mm = nominal.T_base_camera(0.0).translation().norm();  // camera to the fixture origin
+  const double angle = b.hand_eye_deg * std::numbers::pi / 180.0;
+  for (std::uint64_t cell_seed = 1; cell_seed <= 5; ++cell_seed) {
+    const auto fixture = draw_cell_errors(b, cell_seed, nominal);
+    EXPECT_EQ(fixture.budget.hand_eye_pivot, "fixture");
+    EXPECT_NEAR(fixture.hand_eye_error_at_pivot_mm(), 0.0, 1e-9);
+    // On the casting (within 100 mm of the fixture origin at slide 0): at most angle x distance.
+    const Vec3 slide_offset = nominal.T_base_camera(0.0).translation() - nominal.T_base_camera(mid).translation();
+    for (const Vec3& p : {Vec3(0, 0, 0), Vec3(50, 30, 60), Vec3(-40, -60, 20)}) {
+      const double reach = (p - slide_offset).norm() + 1e-9;
+      EXPECT_LE(moved_mm(fixture, p), 2.0 * std::sin(angle / 2.0) * reach + 1e-9) << p.transpose();
+    }
+    b.hand_eye_pivot = "camera";
+    const auto camera = draw_cell_errors(b, cell_seed, nominal);
+    b.hand_eye_pivot = "fixture";
+    EXPECT_NEAR(camera.hand_eye_error_at_pivot_mm(), 0.0, 1e-12) << "the camera's own centre stays put";
+    // At the fixture, far from the pivot: the lever is the working distance (the axis is random,
+    // so the chord is between angle x lever x |sin| of the axis to the lever and angle x lever).
+    EXPECT_LE(moved_mm(camera, Vec3(0, 0, 0)), angle * lever_mm + 1e-6);
+    EXPECT_GT(moved_mm(camera, Vec3(0, 0, 0)), moved_mm(fixture, Vec3(0, 0, 0)) + 0.5) << "cell seed " << cell_seed;
+  }
 }

@@ -105,7 +105,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
     c.place_in_cell(options.cell);  // where the cell's calibration says the camera is
     nominal = c;
     if (!options.errors) return c;
-    drawn = draw_cell_errors(*options.errors, options.cell_seed, c.intrinsics);
+    drawn = draw_cell_errors(*options.errors, options.cell_seed, c);
     return true_scanner(c, *drawn);  // where it really is
   }
 

@@ -20,6 +20,7 @@ struct CellErrors {
   config::ErrorBudget budget;
   std::uint64_t cell_seed = 1;
   Transform T_nominal_true = Transform::Identity();  ///< the true camera frame in the believed one (hand-eye error)
+  Vec3 hand_eye_pivot_camera = Vec3::Zero();          ///< the point the hand-eye rotation turns about (believed camera frame)
   CameraIntrinsics intrinsics_true;                   ///< what the scanner really has
   Vec3 path_bias_mm = Vec3::Zero();                   ///< the executed path's constant offset (base frame)
   /// The smooth depth error: sum of plane waves over the pixel grid.
@@ -28,6 +29,8 @@ struct CellErrors {
   };
   std::vector<Wave> depth_waves;
 
+  /// How far the hand-eye error moves the pivot's point (= the budget's hand_eye_mm).
+  [[nodiscard]] double hand_eye_error_at_pivot_mm() const;
   /// The slide's true position error for capture `view` of casting `seed` (mm).
   [[nodiscard]] double slide_error_mm(std::uint64_t seed, std::size_t view) const;
   /// The smooth depth error at pixel (u, v), mm.
@@ -38,8 +41,9 @@ struct CellErrors {
   [[nodiscard]] nlohmann::json to_json() const;
 };
 
-/// Draws a cell's errors; `nominal` is the intrinsics the cell decodes with.
-CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cell_seed, const CameraIntrinsics& nominal);
+/// Draws a cell's errors; `nominal` is the scanner as the cell believes it is (the intrinsics
+/// it decodes with; its pose and photo positions place the hand-eye error's pivot).
+CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cell_seed, const ScannerConfig& nominal);
 
 /// The scanner as it really is: camera mounted with the hand-eye error, true intrinsics, the
 /// budget's depth noise (sigma 0: no i.i.d. noise).
