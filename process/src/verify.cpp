@@ -1,5 +1,6 @@
 // After grinding (fettle/process/pipeline.hpp): the re-scan of the regions and of the tool's
-// swept footprint against the template -> per-region verdicts and the worst gouge.
+// swept footprint against the template, or the casting's own faces the first scan found -> per-region
+// verdicts and the worst gouge.
 #include "fettle/process/pipeline.hpp"
 
 #include <algorithm>
@@ -7,6 +8,8 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <limits>
+#include <optional>
 #include <string>
 #include <unordered_map>
 
@@ -76,7 +79,7 @@ std::optional<double> neighbourhood_median(const PointCells& cells, const std::v
 
 RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs,
                                 std::size_t min_points, std::vector<Eigen::Vector3f> points_part,
-                                std::vector<float> residual_mm) {
+                                std::vector<float> residual_mm, const std::string& against) {
   RegionVerification v;
   v.name = region.name;
   v.type = region.type;
@@ -124,12 +127,12 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
   } else if (pct(gouged) > vs.nok_max_share_gouged_pct) {
     v.verdict = Verdict::nok;
     v.reason = num(pct(gouged)) + " % of the ROI points are more than gouge_depth_mm = " + num(vs.gouge_depth_mm) +
-               " mm below the template with their neighbourhood (allowed " + num(vs.nok_max_share_gouged_pct) +
+                " mm below the " + against + " with their neighbourhood (allowed " + num(vs.nok_max_share_gouged_pct) +
                " %): gouged";
   } else if (pct(too_high) > vs.ok_max_share_over_0_5_pct) {
     v.verdict = Verdict::nok;
     v.reason = num(pct(too_high)) + " % of the ROI points stand more than max_regrind_height_mm = " +
-               num(vs.max_regrind_height_mm) + " mm above the template: not a grinding leftover";
+               num(vs.max_regrind_height_mm) + " mm above the " + against + ": not a grinding leftover";
   } else if (v.share_over_0_3_pct > vs.ok_max_share_over_0_3_pct || v.share_over_0_5_pct > vs.ok_max_share_over_0_5_pct) {
     v.verdict = Verdict::regrind;
     v.reason = num(v.share_over_0_3_pct) + " % of the ROI points > 0.3 mm (allowed " + num(vs.ok_max_share_over_0_3_pct) +
@@ -143,6 +146,8 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
 }  // namespace
 
 namespace {
+
+const vision::FormOffset kNoForm{};  ///< a place in a region without a form offset
 
 std::string fmt_mm(double v, int precision) {
   char buf[48];
@@ -228,9 +233,58 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   return verify(loaded, cell, rescan, {}, progress);
 }
 
-Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig&, const std::vector<View>& rescan,
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig& cell, const std::vector<View>& rescan,
                                   const std::vector<Trajectory>& ground, const Progress& progress) {
+  return verify(loaded, cell, rescan, ground, VerifyOptions{}, progress);
+}
+
+Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::CellConfig&, const std::vector<View>& rescan,
+                                  const std::vector<Trajectory>& ground, const VerifyOptions& options,
+                                  const Progress& progress) {
   const auto& recipe = loaded.recipe;
+  // The casting's own face (options.before): where the first scan saw the body near a point
+  // (its points within the form deviation of the template: neither flash nor riser; within
+  // 1.5 mm, else 4, else 8), the median of their signed distances; the same camera saw both
+  // scans, so its calibration and smooth depth errors cancel. Where the first scan saw only
+  // material within 8 mm (under a wide riser),
+  // the region's form offset (a plane fitted in its ROI), scaled by how much the template's
+  // face there points up (the z-derivative of the signed distance: 1 on a top face, 0 on a wall).
+  std::vector<const vision::FormOffset*> form(recipe.regions.size(), nullptr);
+  if (options.before != nullptr && options.before->regions.size() == recipe.regions.size())
+    for (std::size_t i = 0; i < form.size(); ++i)
+      if (options.before->regions[i].excess.form.fitted) form[i] = &options.before->regions[i].excess.form;
+  const double form_mm = recipe.vision.form_deviation_mm;
+  constexpr std::array<double, 3> kFaceRadiiMm{1.5, 4.0, 8.0};
+  constexpr std::size_t kFacePoints = 5;
+  std::vector<Eigen::Vector3f> first_pts;  // the first scan in the re-scan's part frame (set once it is located)
+  std::optional<PointCells> first;
+  std::vector<float> first_sd;  // the first scan's signed distances, NaN until asked for
+  std::vector<float> near_first;
+  // q: where the template's distance is taken (the region's frame), p: the point in the
+  // re-scan's part frame (where the first scan's face is looked up)
+  const auto from_face = [&](const Vec3& q, const Vec3& p, const vision::FormOffset* f) {
+    const double d = loaded.template_sdf(q);
+    if (first) {
+      // the nearest ring of the first scan holding enough of the body's face (under a fin the
+      // face beside it; under a riser, none within reach)
+      for (const double radius : kFaceRadiiMm) {
+        near_first.clear();
+        first->within(p, radius, [&](std::size_t i) {
+          if (std::isnan(first_sd[i])) first_sd[i] = static_cast<float>(loaded.template_sdf(first_pts[i].cast<double>()));
+          if (std::abs(first_sd[i]) <= form_mm) near_first.push_back(first_sd[i]);
+        });
+        if (near_first.size() < kFacePoints) continue;
+        const auto mid = near_first.begin() + static_cast<std::ptrdiff_t>(near_first.size() / 2);
+        std::nth_element(near_first.begin(), mid, near_first.end());
+        return d - *mid;
+      }
+    }
+    const double offset = f != nullptr ? f->at(q.x(), q.y()) : 0.0;
+    if (std::abs(offset) < 1e-4) return d;
+    constexpr double h = 0.25;
+    const double up = std::clamp((loaded.template_sdf(q + Vec3(0, 0, h)) - loaded.template_sdf(q - Vec3(0, 0, h))) / (2 * h), 0.0, 1.0);
+    return d - up * offset;
+  };
   const auto& vs = recipe.verification;
   VerificationResult out;
   const std::size_t total = 3;
@@ -240,6 +294,16 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   const auto t0 = Clock::now();
   report(progress, 2, total, "verify");
   out.T_base_part = ins->whole.T_scene_template;
+  // The two scans compared where the camera saw them (the part stays on the fixture): the first
+  // scan's points placed with its own pose, then into the part frame the re-scan located. The
+  // two located poses differ (the material changes the fit), the camera's errors do not.
+  if (options.before != nullptr && form_mm > 0.0) {
+    const Eigen::Isometry3f T = (out.T_base_part.inverse() * options.before->whole.T_scene_template).cast<float>();
+    first_pts.reserve(options.before->scene_part.points.size());
+    for (const auto& p : options.before->scene_part.points) first_pts.push_back(T * p);
+    first.emplace(first_pts, kFaceRadiiMm[0]);
+    first_sd.assign(first_pts.size(), std::numeric_limits<float>::quiet_NaN());
+  }
   for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
     const auto& region = recipe.regions[i];
     const auto& rr = ins->regions[i];
@@ -248,21 +312,26 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     const Transform T_region_part = rr.ok() ? rr.registration.T_scene_template.inverse() * out.T_base_part
                                             : Transform::Identity();
     const Eigen::Isometry3f T = T_region_part.cast<float>();
-    std::vector<Eigen::Vector3f> pts;
+    std::vector<Eigen::Vector3f> pts, pts_part;
     for (const auto& p : ins->scene_part.points) {
       const Eigen::Vector3f q = T * p;
-      if (config::roi_contains(region, q)) pts.push_back(q);
+      if (config::roi_contains(region, q)) pts.push_back(q), pts_part.push_back(p);
     }
     // Residuals on the planner's signed distance (golden samples with their normals, edges
     // handled): the voxel-averaged vision template blends the two normals at every edge and
     // read exactly ground edges as 0.5 mm off.
     std::vector<float> residual;
     residual.reserve(pts.size());
-    for (const auto& q : pts) residual.push_back(static_cast<float>(loaded.template_sdf(q.cast<double>())));
+    for (std::size_t k = 0; k < pts.size(); ++k)
+      residual.push_back(static_cast<float>(from_face(pts[k].cast<double>(), pts_part[k].cast<double>(), form[i])));
     out.regions.push_back(judge_region(region, recipe.verification,
                                        static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
-                                       std::move(residual)));
+                                       std::move(residual), first || form[i] != nullptr ? "casting's own face" : "template"));
     out.regions.back().T_base_region = out.T_base_part * T_region_part.inverse();
+    out.regions.back().against_casting = first || form[i] != nullptr;
+    if (form[i] != nullptr) {
+      out.regions.back().form_offset_mm = form[i]->at(region.roi_center_mm[0], region.roi_center_mm[1]);
+    }
   }
 
   // Gouges wherever the tool went: the whole part's re-scan (part frame, the whole part's pose)
@@ -274,26 +343,28 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     const auto& scene = ins->scene_part.points;
     const auto volumes = swept_volumes(loaded, ground, out.T_base_part.inverse());
     const VolumeIndex footprint(volumes, 8.0);
-    std::vector<float> residual(scene.size());
-    for (std::size_t k = 0; k < scene.size(); ++k)
-      residual[k] = static_cast<float>(loaded.template_sdf(scene[k].cast<double>()));
     // where a point is: the ROI holding it, else the footprint of a region's tool, else nowhere
-    auto place = [&](const Vec3& q, std::string& region, bool& in_roi) {
-      for (const auto& r : recipe.regions)
-        if (config::roi_contains(r, q.cast<float>())) {
-          region = r.name, in_roi = true;
-          return true;
+    auto place = [&](const Vec3& q, std::string& region, bool& in_roi) -> const vision::FormOffset* {
+      for (std::size_t i = 0; i < recipe.regions.size(); ++i)
+        if (config::roi_contains(recipe.regions[i], q.cast<float>())) {
+          region = recipe.regions[i].name, in_roi = true;
+          return form[i] != nullptr ? form[i] : &kNoForm;
         }
       if (const ToolVolume* v = footprint.containing(q)) {
         region = recipe.regions[v->region].name, in_roi = false;
-        return true;
+        return form[v->region] != nullptr ? form[v->region] : &kNoForm;
       }
-      return false;
+      return nullptr;
     };
-    for (const auto& p : scene) {
+    // each point's distance from the casting's face (or the template)
+    std::vector<float> residual(scene.size());
+    for (std::size_t k = 0; k < scene.size(); ++k) {
       std::string region;
       bool in_roi = false;
-      if (place(p.cast<double>(), region, in_roi) && !in_roi) ++out.footprint_points;
+      const Vec3 q = scene[k].cast<double>();
+      const vision::FormOffset* f = place(q, region, in_roi);
+      if (f != nullptr && !in_roi) ++out.footprint_points;
+      residual[k] = static_cast<float>(f == nullptr ? loaded.template_sdf(q) : from_face(q, q, f == &kNoForm ? nullptr : f));
     }
     // candidates from half the gouge depth: the deepest confirmed place is reported even when it
     // is no gouge
@@ -306,7 +377,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       for (auto k : candidates) {
         const Vec3 q = scene[k].cast<double>();
         GougeFinding g;
-        if (!place(q, g.region, g.in_roi)) continue;
+        if (place(q, g.region, g.in_roi) == nullptr) continue;
         const auto median = neighbourhood_median(cells, scene, residual, k, vs.gouge_confirm_radius_mm, near);
         if (!median) continue;
         const double depth = -*median;

@@ -323,7 +323,7 @@ int trial(const Args& a) {
   const auto nominal = app::scanner_config(a.scanner, &limits);
   std::optional<CellErrors> errors;
   if (budget) {
-    errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal.intrinsics);
+    errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal);
     std::printf("errors from %s, drawn for cell seed %llu: %s\n", a.errors.file.string().c_str(),
                 static_cast<unsigned long long>(a.errors.cell_seed), errors->to_json()["drawn"].dump().c_str());
     std::fflush(stdout);
@@ -460,7 +460,9 @@ int trial(const Args& a) {
     std::fprintf(stderr, ", re-scan");
     const auto rescan = scan(casting, seed, 100);
     std::fprintf(stderr, ", verify");
-    const auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory});
+    fettle::process::VerifyOptions vo;
+    vo.before = &out->inspection;  // the casting's own faces, as the cell judges them
+    const auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory}, vo);
     if (ver && learning) {
       json cj;
       cj["bias_before_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};

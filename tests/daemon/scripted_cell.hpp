@@ -410,7 +410,7 @@ struct ScriptedProcessing {
       return out;
     };
     p->verify = [this](const process::LoadedRecipe&, const config::CellConfig&, const std::vector<process::View>&,
-                       const std::vector<Trajectory>&) -> Result<process::VerificationResult> {
+                       const std::vector<Trajectory>&, const process::VerifyOptions&) -> Result<process::VerificationResult> {
       ++verified;
       return process::VerificationResult{};
     };

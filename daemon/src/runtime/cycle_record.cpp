@@ -53,6 +53,8 @@ json verification_json(const VerificationResult& v, Cycle& c, const std::string&
                        {"max_residual_mm", r.max_residual_mm},
                        {"max_above_mm", r.max_above_mm},
                        {"max_below_mm", r.max_below_mm},
+                       {"against", r.against_casting ? "casting" : "template"},
+                       {"form_offset_mm", r.form_offset_mm},
                        {"verdict", to_string(r.verdict)},
                        {"reason", r.reason}});
     const auto name = prefix + "deviation_" + safe_name(r.name) + ".ply";

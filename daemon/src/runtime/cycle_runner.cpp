@@ -273,14 +273,18 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   // c.processed stays put while the worker reads it
   const vision::Inspection* before =
       cell.compensation.enabled && c.regrinds.empty() && c.processed ? &c.processed->inspection : nullptr;
+  // every verification of the cycle judges the casting against its own faces as the first scan
+  // found them (process::VerifyOptions)
+  process::VerifyOptions vo;
+  vo.before = c.processed ? &c.processed->inspection : nullptr;
   auto offset = std::make_shared<std::optional<Result<process::CutOffset>>>();
   // named, not a temporary in the co_await expression (see process_views)
   const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
-      [this, recipe, views_copy, ground, before, offset](std::function<void(Result<VerificationResult>)> done) {
-        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, before, offset, done] {
+      [this, recipe, views_copy, ground, before, vo, offset](std::function<void(Result<VerificationResult>)> done) {
+        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, before, vo, offset, done] {
           Result<VerificationResult> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
-            out = processing->verify(*recipe, cell, *views_copy, *ground);
+            out = processing->verify(*recipe, cell, *views_copy, *ground, vo);
             if (out && before != nullptr) {
               process::CutOffsetSettings cs;
               cs.min_points = static_cast<std::size_t>(cell.compensation.min_points);
@@ -458,9 +462,11 @@ void Runtime::Impl::log_verification(const Cycle& c, const VerificationResult& v
   for (const auto& r : v.regions) {
     const auto line = fmt::format(
         "cycle {}: {} of '{}': {} ({} ROI points, {:.2f} % > 0.3 mm, {:.2f} % > 0.5 mm, "
-        "max {:.2f} mm above / {:.2f} mm below the template){}{}",
+        "max {:.2f} mm above / {:.2f} mm below the {}){}{}",
         c.summary.id, what, r.name, to_string(r.verdict), r.roi_points, r.share_over_0_3_pct, r.share_over_0_5_pct,
-        r.max_above_mm, r.max_below_mm, r.reason.empty() ? "" : ": ", r.reason);
+        r.max_above_mm, r.max_below_mm,
+        r.against_casting ? fmt::format("casting's own face, {:+.2f} mm over the template", r.form_offset_mm) : "template",
+        r.reason.empty() ? "" : ": ", r.reason);
     if (r.verdict == Verdict::ok)
       log->info("{}", line);
     else

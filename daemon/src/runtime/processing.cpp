@@ -13,8 +13,8 @@ Processing Processing::pipeline() {
     return process::process(recipe, cell, views, options);
   };
   p.verify = [](const process::LoadedRecipe& recipe, const config::CellConfig& cell,
-                const std::vector<process::View>& rescan, const std::vector<Trajectory>& ground) {
-    return process::verify(recipe, cell, rescan, ground);
+                const std::vector<process::View>& rescan, const std::vector<Trajectory>& ground,
+                const process::VerifyOptions& options) { return process::verify(recipe, cell, rescan, ground, options);
   };
   return p;
 }

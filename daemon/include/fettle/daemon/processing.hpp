@@ -24,10 +24,12 @@ struct Processing {
   std::function<Result<process::ProcessOutput>(const process::LoadedRecipe&, const config::CellConfig&,
                                                const std::vector<process::View>&, const process::ProcessOptions&)>
       process;
-  /// The verification scan against the template, looking for gouges wherever `ground` went.
+  /// The verification scan against the template, looking for gouges wherever `ground` went;
+  /// judged against the casting's own faces the cycle's first scan found (options.before).
   std::function<Result<process::VerificationResult>(const process::LoadedRecipe&, const config::CellConfig&,
                                                     const std::vector<process::View>& rescan,
-                                                    const std::vector<Trajectory>& ground)>
+                                                    const std::vector<Trajectory>& ground,
+                                                    const process::VerifyOptions& options)>
       verify;
 
   /// fettle::process: process::load_recipe, process::process, process::verify.

@@ -187,6 +187,11 @@ struct RegionVerification {
   double max_residual_mm = 0.0;      ///< largest |distance| to the template
   double max_above_mm = 0.0;         ///< highest material left above the template (>= 0)
   double max_below_mm = 0.0;         ///< deepest point below the template (>= 0, a gouge)
+  /// The casting's own face over the template at the ROI's centre as the scan before grinding
+  /// found it (VerifyOptions::before; its form offset): every distance above is measured from
+  /// the casting's face, not the nominal. 0 when judged against the template.
+  double form_offset_mm = 0.0;
+  bool against_casting = false;      ///< judged against the casting's own face (a form offset was fitted)
   Verdict verdict = Verdict::ok;
   std::string reason;                ///< why REGRIND / NOK (threshold and value)
   /// The pose that puts roi_points_part into the base frame (the region's own fine pose in the
@@ -226,6 +231,16 @@ struct VerificationResult {
   [[nodiscard]] std::vector<std::string> regrind_regions() const;
 };
 
+struct VerifyOptions {
+  /// The first inspection of this casting (ProcessOutput::inspection), or none. With a recipe's
+  /// form_deviation_mm its regions carry the casting's own faces before grinding (their form
+  /// offsets), and the re-scan is judged against those: a body that stands 0.4 mm under the
+  /// nominal is neither a gouge nor, where it stands over it, material left. The offset is
+  /// taken along the face's upward normal only (walls keep the template). Tests
+  /// Verify.TheCastingsOwnFaceIsNeitherGougeNorMaterial*.
+  const vision::Inspection* before = nullptr;
+};
+
 /// Compares the re-scan of each region with the template (thresholds from the recipe's
 /// [verification] table), and looks for gouges in every ROI and in the swept footprint of
 /// every pose of `ground` (the trajectories uploaded in this cycle, base frame): a place more
@@ -233,6 +248,9 @@ struct VerificationResult {
 Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
                                   const std::vector<View>& rescan, const std::vector<Trajectory>& ground,
                                   const Progress& progress = {});
+Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
+                                  const std::vector<View>& rescan, const std::vector<Trajectory>& ground,
+                                  const VerifyOptions& options, const Progress& progress = {});
 /// As above with nothing ground (only the ROIs are searched for gouges).
 Result<VerificationResult> verify(const LoadedRecipe& recipe, const config::CellConfig& cell,
                                   const std::vector<View>& rescan, const Progress& progress = {});
