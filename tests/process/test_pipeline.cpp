@@ -318,16 +318,27 @@ sim::Casting casting_with_form(const config::PartRecipe& recipe, std::uint64_t s
   return sim::Casting::make(world, seed);
 }
 
+/// Casting `seed` 0.5 mm off the nominal, its first scan processed, then ground exactly (every
+/// bit of material removed, nothing else).
+struct PlannedAndGround {
+  sim::Casting casting;
+  Result<ProcessOutput> planned;
+};
+PlannedAndGround plan_then_grind_exactly(const LoadedRecipe& loaded, const config::CellConfig& cell, std::uint64_t seed) {
+  PlannedAndGround out{casting_with_form(loaded.recipe, seed, 0.5), Error{"test", "not planned"}};
+  out.planned = process(loaded, cell, views_of(sim::Scanner(small_scanner()).capture_all(out.casting)));
+  out.casting.remove_all_material();
+  return out;
+}
+
 // A casting 0.5 mm off the nominal here and there, ground exactly: judged against the nominal,
 // its own body reads as material left or a gouge; against the faces its first scan found
 // (VerifyOptions::before), it is OK with nothing below them. Cases checked on this seed: against
 // the template at least one region is not OK.
 TEST_F(Pipeline, VerifyTheCastingsOwnFaceIsNeitherGougeNorMaterial) {
-  auto casting = casting_with_form(loaded_->recipe, 12, 0.5);
-  const sim::Scanner scanner(small_scanner());
-  const auto planned = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
+  auto [casting, planned] = plan_then_grind_exactly(*loaded_, cell_, 12);
   ASSERT_TRUE(planned) << planned.error().message;
-  casting.remove_all_material();
+  const sim::Scanner scanner(small_scanner());
   const auto rescan = views_of(scanner.capture_all(casting));
   VerifyOptions vo;
   vo.before = &planned->inspection;
@@ -352,11 +363,9 @@ TEST_F(Pipeline, VerifyTheCastingsOwnFaceIsNeitherGougeNorMaterial) {
 // The gouge of VerifyFindsAGougeOutsideEveryRoiWhereTheToolWent on a casting 0.5 mm off the
 // nominal: measured from the casting's face as the first scan saw it, it keeps its depth.
 TEST_F(Pipeline, VerifyTheCastingsOwnFaceStillShowsAGougeAtItsDepth) {
-  auto casting = casting_with_form(loaded_->recipe, 12, 0.5);
-  const sim::Scanner scanner(small_scanner());
-  const auto planned = process(*loaded_, cell_, views_of(scanner.capture_all(casting)));
+  auto [casting, planned] = plan_then_grind_exactly(*loaded_, cell_, 12);
   ASSERT_TRUE(planned) << planned.error().message;
-  casting.remove_all_material();
+  const sim::Scanner scanner(small_scanner());
   const std::string region = "side-parting-line";
   const auto it = std::find_if(loaded_->recipe.regions.begin(), loaded_->recipe.regions.end(),
                                [&](const config::Region& r) { return r.name == region; });
