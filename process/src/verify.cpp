@@ -242,13 +242,14 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
                                   const std::vector<Trajectory>& ground, const VerifyOptions& options,
                                   const Progress& progress) {
   const auto& recipe = loaded.recipe;
-  // The casting's own face (options.before): where the first scan saw the body near a point
-  // (its points within the form deviation of the template: neither flash nor riser; within
-  // 1.5 mm, else 4, else 8), the median of their signed distances; the same camera saw both
-  // scans, so its calibration and smooth depth errors cancel. Where the first scan saw only
-  // material within 8 mm (under a wide riser),
-  // the region's form offset (a plane fitted in its ROI), scaled by how much the template's
-  // face there points up (the z-derivative of the signed distance: 1 on a top face, 0 on a wall).
+  // The casting's own face (options.before): where the first scan saw the body's upward faces
+  // near a point (its points on upward template faces within the form deviation of the
+  // template: neither flash nor riser; within 1.5 mm, else 4, else 8), the median of their
+  // signed distances; the same camera saw both scans, so its calibration and smooth depth errors
+  // cancel. Where the first scan saw only material within 8 mm (under a wide riser), the
+  // region's form offset (a plane fitted in its ROI). Either is scaled by how much the
+  // template's face there points up (the z-derivative of the signed distance: 1 on a top face,
+  // 0 on a wall). Docs: docs/planning.md, "verify".
   std::vector<const vision::FormOffset*> form(recipe.regions.size(), nullptr);
   if (options.before != nullptr && options.before->regions.size() == recipe.regions.size())
     for (std::size_t i = 0; i < form.size(); ++i)
@@ -259,30 +260,45 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   std::vector<Eigen::Vector3f> first_pts;  // the first scan in the re-scan's part frame (set once it is located)
   std::optional<PointCells> first;
   std::vector<float> first_sd;  // the first scan's signed distances, NaN until asked for
+  std::vector<float> first_up;  // how much the template's face points up there (set with first_sd)
   std::vector<float> near_first;
   // q: where the template's distance is taken (the region's frame), p: the point in the
   // re-scan's part frame (where the first scan's face is looked up)
+  // how much the template's face at q points up: the z-derivative of its signed distance
+  const auto upness = [&](const Vec3& q) {
+    constexpr double h = 0.25;
+    return std::clamp((loaded.template_sdf(q + Vec3(0, 0, h)) - loaded.template_sdf(q - Vec3(0, 0, h))) / (2 * h), 0.0, 1.0);
+  };
+  constexpr double kUpwardFace = 0.8;  // as the form offset's upward faces (normal z >= 0.8)
   const auto from_face = [&](const Vec3& q, const Vec3& p, const vision::FormOffset* f) {
     const double d = loaded.template_sdf(q);
+    if (!first && f == nullptr) return d;
+    // the body's form moves faces up and down, not walls: a wall keeps the template
+    const double up = upness(q);
+    if (up < 1e-3) return d;
     if (first) {
-      // the nearest ring of the first scan holding enough of the body's face (under a fin the
-      // face beside it; under a riser, none within reach)
+      // the nearest ring of the first scan holding enough of the body's upward face (under a
+      // fin the face beside it; under a riser, none within reach)
       for (const double radius : kFaceRadiiMm) {
         near_first.clear();
         first->within(p, radius, [&](std::size_t i) {
-          if (std::isnan(first_sd[i])) first_sd[i] = static_cast<float>(loaded.template_sdf(first_pts[i].cast<double>()));
-          if (std::abs(first_sd[i]) <= form_mm) near_first.push_back(first_sd[i]);
+          if (std::isnan(first_sd[i])) {
+            const Vec3 x = first_pts[i].cast<double>();
+            first_sd[i] = static_cast<float>(loaded.template_sdf(x));
+            first_up[i] = static_cast<float>(upness(x));
+          }
+          if (first_up[i] >= kUpwardFace && std::abs(first_sd[i]) <= form_mm) near_first.push_back(first_sd[i]);
         });
         if (near_first.size() < kFacePoints) continue;
         const auto mid = near_first.begin() + static_cast<std::ptrdiff_t>(near_first.size() / 2);
         std::nth_element(near_first.begin(), mid, near_first.end());
-        return d - *mid;
+        return d - up * *mid;
       }
     }
-    const double offset = f != nullptr ? f->at(q.x(), q.y()) : 0.0;
-    if (std::abs(offset) < 1e-4) return d;
-    constexpr double h = 0.25;
-    const double up = std::clamp((loaded.template_sdf(q + Vec3(0, 0, h)) - loaded.template_sdf(q - Vec3(0, 0, h))) / (2 * h), 0.0, 1.0);
+    // the plane held within twice the form deviation (the form, plus as much again from the
+    // pose a fit to a deformed body takes): a slope fitted across a narrow ROI (the straight
+    // flash's is 20 mm wide) runs away beyond it
+    const double offset = f != nullptr ? std::clamp(f->at(q.x(), q.y()), -2.0 * form_mm, 2.0 * form_mm) : 0.0;
     return d - up * offset;
   };
   const auto& vs = recipe.verification;
@@ -303,6 +319,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     for (const auto& p : options.before->scene_part.points) first_pts.push_back(T * p);
     first.emplace(first_pts, kFaceRadiiMm[0]);
     first_sd.assign(first_pts.size(), std::numeric_limits<float>::quiet_NaN());
+    first_up.assign(first_pts.size(), 0.0F);
   }
   for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
     const auto& region = recipe.regions[i];
