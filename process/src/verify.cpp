@@ -63,6 +63,13 @@ class PointCells {
   std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
 };
 
+/// The median of `values` (the upper one of an even count; reorders them). Not empty.
+double median_of(std::vector<float>& values) {
+  const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
+  std::nth_element(values.begin(), mid, values.end());
+  return static_cast<double>(*mid);
+}
+
 /// The median signed distance of the points within `radius` of point k (k included): a gouge's
 /// depth as its neighbourhood confirms it. nullopt with fewer than 3 points there (an isolated
 /// point confirms nothing).
@@ -72,9 +79,7 @@ std::optional<double> neighbourhood_median(const PointCells& cells, const std::v
   scratch.clear();
   cells.within(pts[k].cast<double>(), radius, [&](std::size_t i) { scratch.push_back(residual[i]); });
   if (scratch.size() < 3) return std::nullopt;
-  auto mid = scratch.begin() + static_cast<std::ptrdiff_t>(scratch.size() / 2);
-  std::nth_element(scratch.begin(), mid, scratch.end());
-  return static_cast<double>(*mid);
+  return median_of(scratch);
 }
 
 RegionVerification judge_region(const config::Region& region, const config::VerificationSettings& vs,
@@ -146,8 +151,6 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
 }  // namespace
 
 namespace {
-
-const vision::FormOffset kNoForm{};  ///< a place in a region without a form offset
 
 std::string fmt_mm(double v, int precision) {
   char buf[48];
@@ -262,14 +265,14 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   std::vector<float> first_sd;  // the first scan's signed distances, NaN until asked for
   std::vector<float> first_up;  // how much the template's face points up there (set with first_sd)
   std::vector<float> near_first;
-  // q: where the template's distance is taken (the region's frame), p: the point in the
-  // re-scan's part frame (where the first scan's face is looked up)
   // how much the template's face at q points up: the z-derivative of its signed distance
   const auto upness = [&](const Vec3& q) {
     constexpr double h = 0.25;
     return std::clamp((loaded.template_sdf(q + Vec3(0, 0, h)) - loaded.template_sdf(q - Vec3(0, 0, h))) / (2 * h), 0.0, 1.0);
   };
   constexpr double kUpwardFace = 0.8;  // as the form offset's upward faces (normal z >= 0.8)
+  // q: where the template's distance is taken (the region's frame), p: the point in the
+  // re-scan's part frame (where the first scan's face is looked up), f: the region's form offset
   const auto from_face = [&](const Vec3& q, const Vec3& p, const vision::FormOffset* f) {
     const double d = loaded.template_sdf(q);
     if (!first && f == nullptr) return d;
@@ -290,9 +293,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
           if (first_up[i] >= kUpwardFace && std::abs(first_sd[i]) <= form_mm) near_first.push_back(first_sd[i]);
         });
         if (near_first.size() < kFacePoints) continue;
-        const auto mid = near_first.begin() + static_cast<std::ptrdiff_t>(near_first.size() / 2);
-        std::nth_element(near_first.begin(), mid, near_first.end());
-        return d - up * *mid;
+        return d - up * median_of(near_first);
       }
     }
     // the plane held within twice the form deviation (the form, plus as much again from the
@@ -341,14 +342,14 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     residual.reserve(pts.size());
     for (std::size_t k = 0; k < pts.size(); ++k)
       residual.push_back(static_cast<float>(from_face(pts[k].cast<double>(), pts_part[k].cast<double>(), form[i])));
+    const bool against_casting = first.has_value() || form[i] != nullptr;
     out.regions.push_back(judge_region(region, recipe.verification,
                                        static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
-                                       std::move(residual), first || form[i] != nullptr ? "casting's own face" : "template"));
-    out.regions.back().T_base_region = out.T_base_part * T_region_part.inverse();
-    out.regions.back().against_casting = first || form[i] != nullptr;
-    if (form[i] != nullptr) {
-      out.regions.back().form_offset_mm = form[i]->at(region.roi_center_mm[0], region.roi_center_mm[1]);
-    }
+                                       std::move(residual), against_casting ? "casting's own face" : "template"));
+    auto& judged = out.regions.back();
+    judged.T_base_region = out.T_base_part * T_region_part.inverse();
+    judged.against_casting = against_casting;
+    if (form[i] != nullptr) judged.form_offset_mm = form[i]->at(region.roi_center_mm[0], region.roi_center_mm[1]);
   }
 
   // Gouges wherever the tool went: the whole part's re-scan (part frame, the whole part's pose)
@@ -360,28 +361,29 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     const auto& scene = ins->scene_part.points;
     const auto volumes = swept_volumes(loaded, ground, out.T_base_part.inverse());
     const VolumeIndex footprint(volumes, 8.0);
-    // where a point is: the ROI holding it, else the footprint of a region's tool, else nowhere
-    auto place = [&](const Vec3& q, std::string& region, bool& in_roi) -> const vision::FormOffset* {
+    // where a point is: the ROI holding it, else the footprint of a region's tool (the region's
+    // index), else nowhere
+    auto place = [&](const Vec3& q, std::string& region, bool& in_roi) -> std::optional<std::size_t> {
       for (std::size_t i = 0; i < recipe.regions.size(); ++i)
         if (config::roi_contains(recipe.regions[i], q.cast<float>())) {
           region = recipe.regions[i].name, in_roi = true;
-          return form[i] != nullptr ? form[i] : &kNoForm;
+          return i;
         }
       if (const ToolVolume* v = footprint.containing(q)) {
         region = recipe.regions[v->region].name, in_roi = false;
-        return form[v->region] != nullptr ? form[v->region] : &kNoForm;
+        return v->region;
       }
-      return nullptr;
+      return std::nullopt;
     };
-    // each point's distance from the casting's face (or the template)
+    // each point's distance from the casting's face where the tool went (elsewhere the template)
     std::vector<float> residual(scene.size());
     for (std::size_t k = 0; k < scene.size(); ++k) {
       std::string region;
       bool in_roi = false;
       const Vec3 q = scene[k].cast<double>();
-      const vision::FormOffset* f = place(q, region, in_roi);
-      if (f != nullptr && !in_roi) ++out.footprint_points;
-      residual[k] = static_cast<float>(f == nullptr ? loaded.template_sdf(q) : from_face(q, q, f == &kNoForm ? nullptr : f));
+      const auto at = place(q, region, in_roi);
+      if (at && !in_roi) ++out.footprint_points;
+      residual[k] = static_cast<float>(at ? from_face(q, q, form[*at]) : loaded.template_sdf(q));
     }
     // candidates from half the gouge depth: the deepest confirmed place is reported even when it
     // is no gouge
@@ -394,7 +396,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       for (auto k : candidates) {
         const Vec3 q = scene[k].cast<double>();
         GougeFinding g;
-        if (place(q, g.region, g.in_roi) == nullptr) continue;
+        if (!place(q, g.region, g.in_roi)) continue;
         const auto median = neighbourhood_median(cells, scene, residual, k, vs.gouge_confirm_radius_mm, near);
         if (!median) continue;
         const double depth = -*median;

@@ -19,7 +19,6 @@ Vec3 random_direction(Rng& rng) {
   const double r = std::sqrt(std::max(0.0, 1.0 - z * z));
   return {r * std::cos(a), r * std::sin(a), z};
 }
-}  // namespace
 
 Vec3 hand_eye_pivot_in_camera(const config::ErrorBudget& budget, const ScannerConfig& nominal) {
   if (budget.hand_eye_pivot == "camera") return Vec3::Zero();
@@ -32,6 +31,7 @@ Vec3 hand_eye_pivot_in_camera(const config::ErrorBudget& budget, const ScannerCo
   }
   return nominal.T_base_camera(mid).inverse() * Vec3::Zero();
 }
+}  // namespace
 
 CellErrors draw_cell_errors(const config::ErrorBudget& budget, std::uint64_t cell_seed, const ScannerConfig& nominal) {
   CellErrors e;

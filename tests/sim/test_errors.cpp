@@ -181,12 +181,13 @@ TEST(ErrorBudget, TheHandEyeRotationTurnsAboutTheFixtureUnlessToldTheCamera) {
                  *std::max_element(nominal.photo_positions_mm.begin(), nominal.photo_positions_mm.end()));
   const double lever_mm = nominal.T_base_camera(0.0).translation().norm();  // camera to the fixture origin
   const double angle = b.hand_eye_deg * std::numbers::pi / 180.0;
+  // where the pivot is at slide 0: the fixture origin moved with the camera from the mid position
+  const Vec3 slide_offset = nominal.T_base_camera(0.0).translation() - nominal.T_base_camera(mid).translation();
   for (std::uint64_t cell_seed = 1; cell_seed <= 5; ++cell_seed) {
     const auto fixture = draw_cell_errors(b, cell_seed, nominal);
     EXPECT_EQ(fixture.budget.hand_eye_pivot, "fixture");
     EXPECT_NEAR(fixture.hand_eye_error_at_pivot_mm(), 0.0, 1e-9);
     // On the casting (within 100 mm of the fixture origin at slide 0): at most angle x distance.
-    const Vec3 slide_offset = nominal.T_base_camera(0.0).translation() - nominal.T_base_camera(mid).translation();
     for (const Vec3& p : {Vec3(0, 0, 0), Vec3(50, 30, 60), Vec3(-40, -60, 20)}) {
       const double reach = (p - slide_offset).norm() + 1e-9;
       EXPECT_LE(moved_mm(fixture, p), 2.0 * std::sin(angle / 2.0) * reach + 1e-9) << p.transpose();

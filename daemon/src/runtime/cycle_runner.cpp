@@ -268,15 +268,13 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   auto ground = std::make_shared<std::vector<Trajectory>>();
   if (c.processed) ground->push_back(c.processed->trajectory);
   for (const auto& r : c.regrinds) ground->push_back(r.trajectory);
-  // [compensation]: the first verification also measures where the tool cut against where it
-  // was told (the first inspection says where material was); the cycle's coroutine waits, so
-  // c.processed stays put while the worker reads it
-  const vision::Inspection* before =
-      cell.compensation.enabled && c.regrinds.empty() && c.processed ? &c.processed->inspection : nullptr;
-  // every verification of the cycle judges the casting against its own faces as the first scan
-  // found them (process::VerifyOptions)
+  // Every verification of the cycle judges the casting against its own faces as the first scan
+  // found them (process::VerifyOptions); with [compensation] the first one also measures where
+  // the tool cut against where it was told (the first inspection says where material was). The
+  // cycle's coroutine waits, so c.processed stays put while the worker reads it.
   process::VerifyOptions vo;
   vo.before = c.processed ? &c.processed->inspection : nullptr;
+  const vision::Inspection* before = cell.compensation.enabled && c.regrinds.empty() ? vo.before : nullptr;
   auto offset = std::make_shared<std::optional<Result<process::CutOffset>>>();
   // named, not a temporary in the co_await expression (see process_views)
   const std::function<void(std::function<void(Result<VerificationResult>)>)> start =

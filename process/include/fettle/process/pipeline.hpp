@@ -188,10 +188,11 @@ struct RegionVerification {
   double max_above_mm = 0.0;         ///< highest material left above the template (>= 0)
   double max_below_mm = 0.0;         ///< deepest point below the template (>= 0, a gouge)
   /// The casting's own face over the template at the ROI's centre as the scan before grinding
-  /// found it (VerifyOptions::before; its form offset): every distance above is measured from
-  /// the casting's face, not the nominal. 0 when judged against the template.
+  /// found it (VerifyOptions::before; the region's form offset). 0 when none was fitted.
   double form_offset_mm = 0.0;
-  bool against_casting = false;      ///< judged against the casting's own face (a form offset was fitted)
+  /// Every distance above is measured from the casting's own upward faces as the first scan saw
+  /// them (VerifyOptions::before), not from the template.
+  bool against_casting = false;
   Verdict verdict = Verdict::ok;
   std::string reason;                ///< why REGRIND / NOK (threshold and value)
   /// The pose that puts roi_points_part into the base frame (the region's own fine pose in the
@@ -233,11 +234,11 @@ struct VerificationResult {
 
 struct VerifyOptions {
   /// The first inspection of this casting (ProcessOutput::inspection), or none. With a recipe's
-  /// form_deviation_mm its regions carry the casting's own faces before grinding (their form
-  /// offsets), and the re-scan is judged against those: a body that stands 0.4 mm under the
-  /// nominal is neither a gouge nor, where it stands over it, material left. The offset is
-  /// taken along the face's upward normal only (walls keep the template). Tests
-  /// Verify.TheCastingsOwnFaceIsNeitherGougeNorMaterial*.
+  /// form_deviation_mm its scan shows the casting's own faces before grinding (where it saw
+  /// none, its regions' form offsets stand in), and the re-scan is judged against those: a body
+  /// that stands 0.4 mm under the nominal is neither a gouge nor, where it stands over it,
+  /// material left. Only upward faces move (walls keep the template). Tests
+  /// Pipeline.VerifyTheCastingsOwnFace*.
   const vision::Inspection* before = nullptr;
 };
 
