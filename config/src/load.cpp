@@ -95,6 +95,9 @@ void read_cell(TableReader& root, CellConfig& cfg) {
     t->number("max_spindle_rpm", s.max_spindle_rpm, {1.0, 100000.0});
     t->number("safe_height_mm", s.safe_height_mm, {0.0, 2000.0});
     t->number("min_clearance_mm", s.min_clearance_mm, {0.0, 10.0});
+    t->number("calibration_accuracy_mm", s.calibration_accuracy_mm, {0.0, 5.0});
+    t->number("robot_accuracy_mm", s.robot_accuracy_mm, {0.0, 5.0});
+    t->number("robot_repeatability_mm", s.robot_repeatability_mm, {0.0, 5.0});
   }
   if (auto t = root.table("control")) {
     t->path("socket", cfg.control.socket);

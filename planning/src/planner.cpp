@@ -11,6 +11,8 @@
 #include <optional>
 #include <sstream>
 
+#include <Eigen/Eigenvalues>
+
 namespace fettle::planning {
 namespace {
 
@@ -508,7 +510,8 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
   for (double level : plan.layer_levels_mm) {
     // The bounding box's corners can reach over a neighbouring feature the tool cannot pass
     // (a wall beside the pad): a raster point there that covers no material, or none higher
-    // than leave_unreachable_mm (noise at the pad's edge), is left out (the highest such
+    // than leave_unreachable_mm (noise at the pad's edge) or the casting's form deviation (its
+    // own face beside the pad), is left out (the highest such
     // material in left_mm) and the tool lifts over the gap; higher material is an error.
     std::vector<std::pair<Transform, bool>> layer;  // pose, lifted onto (after a left-out point or an uncleared move)
     bool gap = false;
@@ -520,7 +523,7 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
         Transform T = frame_from(frame->base + a * e1 + b * e2 + level * up, up, (r % 2 == 0) ? e1 : Vec3(-e1));
         if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm)) {
           const auto k = material_under(a, b);
-          if (!k || heights[*k] <= settings.leave_unreachable_mm) {
+          if (!k || heights[*k] <= std::max(settings.leave_unreachable_mm, in.form_deviation_mm)) {
             if (k && heights[*k] > plan.left_mm) plan.left_mm = heights[*k], plan.left_at = pts[*k];
             gap = true;
             continue;
@@ -857,6 +860,48 @@ RegionInput on_the_castings_face(const RegionInput& in) {
   return out;
 }
 
+/// The input whose template keeps the placement bound where it exceeds the region's allowance
+/// (see RegionInput::placement_bound_mm2): the surface moved out along its normal n by
+/// max(0, sqrt(n^T M n) - allowance), so that every pose keeping the allowance from it keeps the
+/// bound from the template. n is the distance's gradient (central differences across a grid
+/// voxel); where it has none (a medial point) the largest bound.
+RegionInput kept_from_placement(const RegionInput& in) {
+  const Eigen::Matrix3d M = 0.5 * (in.placement_bound_mm2 + in.placement_bound_mm2.transpose());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(M);
+  const double allowance = in.region->allowance_mm;
+  const double largest = std::sqrt(std::max(0.0, eig.eigenvalues().maxCoeff()));
+  if (largest <= allowance) return in;
+  const double smallest = std::sqrt(std::max(0.0, eig.eigenvalues().minCoeff()));
+  const double most = largest - allowance;
+  const auto base = in.template_sdf;
+  std::function<double(const Vec3&)> extra;
+  if (largest - smallest < 1e-6) {
+    extra = [most](const Vec3&) { return most; };
+  } else {
+    extra = [base, M, allowance, most](const Vec3& p) {
+      constexpr double h = 0.25;
+      Vec3 g;
+      for (int k = 0; k < 3; ++k) {
+        Vec3 d = Vec3::Zero();
+        d(k) = h;
+        g(k) = base(p + d) - base(p - d);
+      }
+      const double n = g.norm();
+      if (!(n > 1e-9)) return most;
+      g /= n;
+      return std::max(0.0, std::sqrt(std::max(0.0, g.dot(M * g))) - allowance);
+    };
+  }
+  RegionInput out = in;
+  out.template_sdf = SignedDistance([base, extra](const Vec3& p) { return base(p) - extra(p); },
+                                    [base, extra, most](const Vec3& p, double near_mm) {
+                                      // exact within near_mm + most: moved out by at most `most`
+                                      const double b = base.near(p, near_mm + most);
+                                      return std::abs(b) > near_mm + most ? b - most : b - extra(p);
+                                    });
+  return out;
+}
+
 }  // namespace
 
 Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& settings) {
@@ -878,11 +923,11 @@ Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& set
     case config::RegionType::ring_flash:
     case config::RegionType::circle_flash:
       // a flash's loop follows the wall, whose form the camera does not see from above
-      return plan_flash_loop(in, settings, std::move(plan));
+      return plan_flash_loop(kept_from_placement(in), settings, std::move(plan));
     case config::RegionType::riser:
-      return plan_riser(on_the_castings_face(in), settings, std::move(plan));
+      return plan_riser(kept_from_placement(on_the_castings_face(in)), settings, std::move(plan));
     case config::RegionType::straight_flash:
-      return plan_straight(on_the_castings_face(in), settings, std::move(plan));
+      return plan_straight(kept_from_placement(on_the_castings_face(in)), settings, std::move(plan));
   }
   return region_error(plan.region, "input", "unknown region type");
 }

@@ -245,14 +245,75 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
   return out;
 }
 
+namespace {
+
+/// The projector onto the span of a symmetric positive semi-definite matrix's eigenvectors
+/// whose eigenvalues are at least half the largest possible one (a projector's 1).
+Eigen::Matrix3d projector_onto(const Eigen::Matrix3d& M) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (M + M.transpose()));
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+  for (int k = 0; k < 3; ++k)
+    if (eig.eigenvalues()(k) >= 0.5) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
+  return P;
+}
+
+nlohmann::ordered_json matrix_to_json(const Eigen::Matrix3d& M) {
+  nlohmann::ordered_json rows = nlohmann::ordered_json::array();
+  for (int r = 0; r < 3; ++r) rows.push_back({M(r, 0), M(r, 1), M(r, 2)});
+  return rows;
+}
+
+/// A 3x3 matrix as rows; absent: zero (learned along no direction: the full stated error is kept).
+Eigen::Matrix3d matrix_from_json(const nlohmann::json& j, const char* key) {
+  Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
+  if (!j.contains(key)) return M;
+  const auto& rows = j.at(key);
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) M(r, c) = rows.at(static_cast<std::size_t>(r)).at(static_cast<std::size_t>(c)).get<double>();
+  if (!M.allFinite()) throw std::invalid_argument(std::string(key) + " is not finite");
+  return M;
+}
+
+}  // namespace
+
 Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSection& settings) {
   const Vec3 before = bias_mm;
   // the measurement is the cell's whole offset (the re-scan against the commanded path, which
   // already had the estimate taken off): the estimate moves towards it along what it observed
-  bias_mm += settings.gain * (measured.observed * (measured.offset_mm - bias_mm));
+  const Vec3 innovation = measured.observed * (measured.offset_mm - bias_mm);
+  bias_mm += settings.gain * innovation;
+  scatter_mm2 = (1.0 - settings.gain) * scatter_mm2 + settings.gain * innovation * innovation.transpose();
+  learned = projector_onto(learned + measured.observed);
   if (const double n = bias_mm.norm(); n > settings.max_offset_mm && n > 0.0) bias_mm *= settings.max_offset_mm / n;
   ++updates;
   return bias_mm - before;
+}
+
+double PlacementUncertainty::along_mm(const Vec3& n) const { return std::sqrt(std::max(0.0, n.dot(bound_mm2 * n))); }
+
+std::string PlacementUncertainty::describe() const {
+  // sideways: the larger of the two horizontal principal bounds
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> h(bound_mm2.topLeftCorner<2, 2>());
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "%.2f mm sideways, %.2f mm vertically", std::sqrt(std::max(0.0, h.eigenvalues()(1))),
+                along_mm(Vec3::UnitZ()));
+  return buf;
+}
+
+PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const CellBias& bias,
+                                           const config::CompensationSection& settings) {
+  PlacementUncertainty u;
+  if (safety.calibration_accuracy_mm <= 0.0 && safety.robot_accuracy_mm <= 0.0 && safety.robot_repeatability_mm <= 0.0)
+    return u;  // nothing stated: the regions' allowances alone
+  const double systematic2 =
+      safety.calibration_accuracy_mm * safety.calibration_accuracy_mm + safety.robot_accuracy_mm * safety.robot_accuracy_mm;
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d& P = bias.learned;
+  const double g = std::clamp(settings.gain, 1e-6, 1.0);
+  const double left = std::pow(1.0 - g, static_cast<double>(bias.updates));  // of the stated systematic error
+  u.bound_mm2 = systematic2 * (I - P) + left * left * systematic2 * P + g / (2.0 - g) * (P * bias.scatter_mm2 * P) +
+                safety.robot_repeatability_mm * safety.robot_repeatability_mm * I;
+  return u;
 }
 
 std::string CellBias::describe() const {
@@ -274,6 +335,8 @@ Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
     b.updates = j.value("updates", std::size_t{0});
     b.calibration_id = j.value("calibration_id", std::string{});
     b.tools_id = j.value("tools_id", std::string{});
+    b.learned = matrix_from_json(j, "learned");
+    b.scatter_mm2 = matrix_from_json(j, "scatter_mm2");
     return b;
   } catch (const std::exception& e) {
     return Error{"compensation.state", file.string() + ": not a compensation state file (" + e.what() + ")"};
@@ -285,6 +348,8 @@ Status save_cell_bias(const std::filesystem::path& file, const CellBias& bias) {
                                     {"updates", bias.updates},
                                     {"calibration_id", bias.calibration_id},
                                     {"tools_id", bias.tools_id},
+                                    {"learned", matrix_to_json(bias.learned)},
+                                    {"scatter_mm2", matrix_to_json(bias.scatter_mm2)},
                                     {"frame", "base: where the tool cuts minus where it is told to, mm"}};
   return write_file_atomic(file, j.dump(2) + "\n");
 }

@@ -175,6 +175,9 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     in.excess_points_part.reserve(rr.excess.points.size());
     for (const auto& p : rr.excess.points) in.excess_points_part.push_back(T_part_region * p.cast<double>());
     in.template_sdf = loaded.template_sdf;
+    const Eigen::Matrix3d R_base_part = T_base_located.linear();
+    in.placement_bound_mm2 = R_base_part.transpose() * options.placement_bound_mm2 * R_base_part;
+    in.form_deviation_mm = recipe.vision.form_deviation_mm;
     if (rr.excess.form.fitted) {
       const auto form = rr.excess.form;  // region template frame ~ part frame (within the region's fit)
       in.form_offset_mm = [form](const Vec3& p) { return form.at(p.x(), p.y()); };

@@ -291,6 +291,31 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
   return m.str();
 }
 
+/// With --errors, a cell file that states no accuracy in [safety] gets what an integrator who
+/// measured this cell would state: the calibration's error at the part (the translation plus
+/// the rotation over its lever: the farthest region's distance from the fixture origin, or the
+/// working distance when it turns about the camera), the robot's accuracy (its path offset and
+/// TCP length error) and its ISO 9283 repeatability (3 sigma of the path noise). Printed.
+void state_accuracies(const fettle::config::PartRecipe& recipe, const CellErrors& errors, const ScannerConfig& nominal,
+                      fettle::config::SafetySection& safety) {
+  if (safety.calibration_accuracy_mm > 0.0 || safety.robot_accuracy_mm > 0.0 || safety.robot_repeatability_mm > 0.0)
+    return;
+  const auto& b = errors.budget;
+  double lever_mm = 0.0;
+  for (const auto& r : recipe.regions) {
+    const fettle::Vec3 at(r.roi_center_mm[0], r.roi_center_mm[1], r.roi_center_mm[2]);
+    lever_mm = std::max(lever_mm, b.hand_eye_pivot == "camera" ? (at - nominal.T_base_camera(0.0).translation()).norm()
+                                                               : at.norm());
+  }
+  safety.calibration_accuracy_mm = b.hand_eye_mm + fettle::deg_to_rad(b.hand_eye_deg) * lever_mm;
+  safety.robot_accuracy_mm = std::hypot(b.path_bias_mm, b.tcp_length_mm);
+  safety.robot_repeatability_mm = 3.0 * b.path_noise_mm;
+  std::printf("the cell states (its file states none): calibration_accuracy_mm %.3f (over a %.0f mm lever), "
+              "robot_accuracy_mm %.3f, robot_repeatability_mm %.3f\n",
+              safety.calibration_accuracy_mm, lever_mm, safety.robot_accuracy_mm, safety.robot_repeatability_mm);
+  std::fflush(stdout);
+}
+
 void save_points(const fs::path& file, const std::vector<Eigen::Vector3f>& pts, const fettle::Transform& T) {
   fettle::vision::Cloud c;
   c.points.reserve(pts.size());
@@ -327,6 +352,7 @@ int trial(const Args& a) {
     std::printf("errors from %s, drawn for cell seed %llu: %s\n", a.errors.file.string().c_str(),
                 static_cast<unsigned long long>(a.errors.cell_seed), errors->to_json()["drawn"].dump().c_str());
     std::fflush(stdout);
+    state_accuracies(recipe, *errors, nominal, cell.safety);
   }
   const Scanner scanner(errors ? true_scanner(nominal, *errors) : nominal);
   // The scans as the cell gets them: the true world, decoded with what the cell believes.
@@ -395,6 +421,14 @@ int trial(const Args& a) {
     const auto first_scan = scan(casting, seed, 0);
     fettle::process::ProcessOptions popt;
     popt.cell_bias_mm = learning ? cell_bias.bias_mm : fettle::Vec3::Zero();
+    const auto placement = fettle::process::placement_uncertainty(
+        cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation);
+    popt.placement_bound_mm2 = placement.bound_mm2;
+    if (!placement.bound_mm2.isZero()) {
+      std::fprintf(stderr, " (keeping %s)", placement.describe().c_str());
+      sj["placement_bound_mm"] = {placement.along_mm(fettle::Vec3::UnitX()), placement.along_mm(fettle::Vec3::UnitY()),
+                                  placement.along_mm(fettle::Vec3::UnitZ())};
+    }
     auto out = fettle::process::process(loaded, cell, first_scan.views, popt,
                                        [](std::size_t, std::size_t, const std::string& step) {
                                          if (step != "done") std::fprintf(stderr, ", %s", step.c_str());

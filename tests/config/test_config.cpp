@@ -180,6 +180,21 @@ TEST_F(ConfigFileTest, OutOfRangeValueNamesTheAllowedRange) {
   EXPECT_THAT(d[0].message, HasSubstr("value 70000 is out of range (allowed 1 to 65535)"));
 }
 
+// The cell's stated accuracies: read into [safety], a negative one named with its range.
+TEST_F(ConfigFileTest, StatedAccuraciesAreReadAndANegativeOneIsNamed) {
+  const std::string stated = "workspace_max_mm = [500.0, 500.0, 800.0]\ncalibration_accuracy_mm = 0.15\n"
+                             "robot_accuracy_mm = 0.1\nrobot_repeatability_mm = 0.05\n";
+  const auto cell = fettle::config::load_cell(write("cell.toml", replace(kCell, "workspace_max_mm = [500.0, 500.0, 800.0]\n", stated)));
+  EXPECT_DOUBLE_EQ(cell.safety.calibration_accuracy_mm, 0.15);
+  EXPECT_DOUBLE_EQ(cell.safety.robot_accuracy_mm, 0.1);
+  EXPECT_DOUBLE_EQ(cell.safety.robot_repeatability_mm, 0.05);
+  const auto d = check_file(write("cell.toml", replace(kCell, "workspace_max_mm = [500.0, 500.0, 800.0]\n",
+                                                      "workspace_max_mm = [500.0, 500.0, 800.0]\nrobot_accuracy_mm = -0.1\n")));
+  ASSERT_EQ(d.size(), 1U) << all(d);
+  EXPECT_EQ(d[0].key, "safety.robot_accuracy_mm");
+  EXPECT_THAT(d[0].message, HasSubstr("out of range"));
+}
+
 TEST_F(ConfigFileTest, BadIpv4AddressIsRejected) {
   const auto d = check_file(write("cell.toml", replace(kCell, "address = \"127.0.0.1\"\nport = 1502",
                                                        "address = \"127.0.0.300\"\nport = 1502")));

@@ -109,6 +109,61 @@ TEST(RiserPlan, TheLastPassEndsOnTheCastingsOwnFaceNotTheNominal) {
   }
 }
 
+// The cell's placement bound (0.35 mm sideways, 0.20 mm vertically; the allowance is 0.05):
+// every grinding pose of the ball-tool regions keeps the bound along the nearest surface's
+// normal and the nearest comes to it (the boss's loop rides its top edge, whose normal is
+// diagonal: 0.29 mm), the riser's last layer 0.20 mm over its face. Without the bound the same
+// plans come within 0.15 mm.
+TEST(RegionPlanning, EveryPoseKeepsThePlacementBoundAlongTheSurfacesNormal) {
+  const Eigen::Matrix3d M = Vec3(0.35 * 0.35, 0.35 * 0.35, 0.2 * 0.2).asDiagonal();
+  const auto bound_along = [&](const Vec3& n) { return std::sqrt(n.dot(M * n)); };
+  // a ball-tool plan's grinding poses: the smallest gap to the template, and the same less the
+  // bound along the nearest surface's normal there
+  struct Gaps {
+    double gap = 1e9, over_bound = 1e9;
+  };
+  const auto gaps = [&](const RegionPlan& plan, const RegionInput& in) {
+    Gaps g;
+    const double R = 0.5 * in.tool->diameter_mm;
+    for (const auto& p : plan.points) {
+      if (p.kind != MoveKind::grind) continue;
+      const Transform T_part_tool = in.T_base_part.inverse() * p.T_base_tool.to_transform();
+      const Vec3 c = T_part_tool * Vec3(0.0, 0.0, R);  // the ball's centre, R up the axis from the tip
+      Vec3 n;
+      for (int k = 0; k < 3; ++k) {
+        Vec3 d = Vec3::Zero();
+        d(k) = 0.01;
+        n(k) = part_sdf(c + d) - part_sdf(c - d);
+      }
+      n.normalize();
+      const double gap = part_sdf(c) - R;
+      g.gap = std::min(g.gap, gap);
+      g.over_bound = std::min(g.over_bound, gap - bound_along(n));
+    }
+    return g;
+  };
+  auto scene = make_scene();
+  for (const std::size_t i : {1U, 2U, 3U}) {
+    RegionInput in = scene.inputs[i];
+    const auto free = plan_region(in, PlannerSettings{});
+    ASSERT_TRUE(free) << free.error().message;
+    in.placement_bound_mm2 = M;
+    const auto kept = plan_region(in, PlannerSettings{});
+    ASSERT_TRUE(kept) << kept.error().message;
+    EXPECT_LT(gaps(*free, in).gap, 0.15) << in.region->name;
+    EXPECT_NEAR(gaps(*kept, in).over_bound, 0.0, 0.02) << in.region->name << ": the bound, not more";
+  }
+  RegionInput riser = scene.inputs[1];
+  riser.placement_bound_mm2 = M;
+  const auto plan = plan_region(riser, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  for (const auto& p : plan->points) {
+    if (p.segment == plan->segments - 1 && p.kind == MoveKind::grind) {
+      EXPECT_NEAR(p.T_base_tool.position_mm.z(), 45.2, 0.02);
+    }
+  }
+}
+
 TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) {
   auto scene = make_scene();
   RegionInput in = scene.inputs[1];
@@ -150,6 +205,12 @@ TEST(RiserPlan, AnUnreachableRasterCornerWithoutMaterialIsLeftOutAndLiftedOver) 
   EXPECT_NE(refused.error().message.find("cannot reach the riser material"), std::string::npos) << refused.error().message;
   EXPECT_NE(refused.error().message.find("(-63.00, 27.00, 45.60), 0.60 mm above"), std::string::npos)
       << refused.error().message;
+  // on a casting whose form deviates up to 0.7 mm from the nominal, 0.6 mm there may be its own
+  // face: left and said, not a casting refused
+  in.form_deviation_mm = 0.7;
+  const auto form = plan_region(in, settings);
+  ASSERT_TRUE(form) << form.error().message;
+  EXPECT_NEAR(form->left_mm, 0.6, 1e-6);
 }
 
 // A flat-ended tool's raster reaches over a block beside the pad (the flange beside a casting's

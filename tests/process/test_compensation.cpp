@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <random>
+#include <vector>
 
 #include <unistd.h>
 
@@ -144,6 +145,41 @@ TEST(Compensation, TheEstimateConvergesOnTheCellsOffsetAndStaysWithinItsBound) {
   EXPECT_NEAR(bias.bias_mm.norm(), settings.max_offset_mm, 1e-9) << bias.describe();
 }
 
+// The stated accuracies (calibration 0.20, robot 0.15, repeatability 0.15 mm) bound the cut at
+// their root sum of squares, 0.29 mm, until the cell learns a direction; along it the systematic
+// part shrinks with the estimate's updates and its scatter, the repeatability stays; the
+// directions it never observed keep all of it.
+TEST(Compensation, PlacementUncertaintyShrinksAlongWhatTheCellLearnedOnly) {
+  fettle::config::SafetySection safety;
+  safety.calibration_accuracy_mm = 0.20;
+  safety.robot_accuracy_mm = 0.15;
+  safety.robot_repeatability_mm = 0.15;
+  const fettle::config::CompensationSection settings;  // gain 0.5
+  fp::CellBias bias;
+  const auto stated = fp::placement_uncertainty(safety, bias, settings);
+  const double all = std::sqrt(0.2 * 0.2 + 0.15 * 0.15 + 0.15 * 0.15);
+  for (const Vec3& n : std::vector<Vec3>{Vec3::UnitX(), Vec3::UnitY(), Vec3::UnitZ(), Vec3(1, 1, 1).normalized()})
+    EXPECT_NEAR(stated.along_mm(n), all, 1e-9);
+  // cuts that face up: z is learned, a measurement scattered by 0.04 mm about a -0.25 mm offset
+  fp::CutOffset up;
+  up.observed = Vec3(0.0, 0.0, 1.0).asDiagonal();
+  std::vector<double> z_bound;
+  for (int k = 0; k < 8; ++k) {
+    up.offset_mm = Vec3(0.0, 0.0, -0.25 + (k % 2 == 0 ? 0.04 : -0.04));
+    bias.update(up, settings);
+    z_bound.push_back(fp::placement_uncertainty(safety, bias, settings).along_mm(Vec3::UnitZ()));
+  }
+  const auto learned = fp::placement_uncertainty(safety, bias, settings);
+  EXPECT_NEAR(learned.along_mm(Vec3::UnitX()), all, 1e-9);
+  EXPECT_NEAR(learned.along_mm(Vec3::UnitY()), all, 1e-9);
+  EXPECT_LT(z_bound.back(), z_bound.front());
+  EXPECT_GE(z_bound.back(), 0.15 - 1e-9);  // the repeatability is never learned away
+  EXPECT_LT(z_bound.back(), 0.17);         // 0.15 and a third of the scatter (about 0.05 mm squared)
+  EXPECT_NE(learned.describe().find("0.29 mm sideways"), std::string::npos) << learned.describe();
+  // nothing stated: nothing kept beyond the regions' allowances
+  EXPECT_TRUE(fp::placement_uncertainty(fettle::config::SafetySection{}, bias, settings).bound_mm2.isZero());
+}
+
 TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   const auto dir = std::filesystem::temp_directory_path() / ("fettle-comp-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
@@ -151,12 +187,16 @@ TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   b.bias_mm = Vec3(0.1, -0.2, 0.05);
   b.updates = 7;
   b.calibration_id = "abc";
+  b.learned = Vec3(0.0, 0.0, 1.0).asDiagonal();
+  b.scatter_mm2(2, 2) = 0.0025;
   ASSERT_TRUE(fp::save_cell_bias(dir / "compensation.json", b));
   const auto r = fp::load_cell_bias(dir / "compensation.json");
   ASSERT_TRUE(r) << r.error().message;
   EXPECT_LT((r->bias_mm - b.bias_mm).norm(), 1e-12);
   EXPECT_EQ(r->updates, 7u);
   EXPECT_EQ(r->calibration_id, "abc");
+  EXPECT_LT((r->learned - b.learned).norm(), 1e-12);
+  EXPECT_LT((r->scatter_mm2 - b.scatter_mm2).norm(), 1e-12);
   const auto none = fp::load_cell_bias(dir / "missing.json");
   ASSERT_TRUE(none);
   EXPECT_EQ(none->updates, 0u);

@@ -233,6 +233,11 @@ void Runtime::Impl::record_cycle(Cycle& c) {
       comp["not_measured"] = c.cut_offset->error().message;
     report["compensation"] = comp;
   }
+  if (!c.placement.bound_mm2.isZero())
+    report["placement_bound_mm"] = {{"sideways_and_vertical", c.placement.describe()},
+                                    {"x", c.placement.along_mm(Vec3::UnitX())},
+                                    {"y", c.placement.along_mm(Vec3::UnitY())},
+                                    {"z", c.placement.along_mm(Vec3::UnitZ())}};
   report["files"] = c.files;
   if (auto st = Records::write_file(s, "report.json", report.dump(2)); !st)
     log->error("cycle {}: report.json: {}", s.id, st.error().message);

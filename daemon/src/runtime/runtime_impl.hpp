@@ -105,6 +105,9 @@ struct Cycle {
   /// [compensation]: the bias this cycle's paths were commanded with, and what its first
   /// verification measured of where the tool cut (report.json "compensation").
   Vec3 cell_bias_mm = Vec3::Zero();
+  /// What every path of the cycle keeps from the template: the cell's stated accuracies less
+  /// what it has learned (process::placement_uncertainty; report.json "placement_bound_mm").
+  process::PlacementUncertainty placement;
   std::optional<Result<process::CutOffset>> cut_offset;
   std::string result;  ///< "OK" / "NOK" when no fault
   json files = json::array();

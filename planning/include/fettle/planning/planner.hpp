@@ -64,6 +64,15 @@ struct RegionInput {
   /// template, which stays what every pose keeps its clearance from (test
   /// RiserPlan.TheLastPassEndsOnTheCastingsOwnFaceNotTheNominal).
   std::function<double(const Vec3& p_part)> form_offset_mm;
+  /// How far the tool may really cut from where it is told (part frame, mm^2): the bound along a
+  /// unit n is sqrt(n^T M n). Where it exceeds the region's allowance, every pose keeps the bound
+  /// from the template along the surface's normal instead (test
+  /// RegionPlanning.EveryPoseKeepsThePlacementBoundAlongTheSurfacesNormal).
+  Eigen::Matrix3d placement_bound_mm2 = Eigen::Matrix3d::Zero();
+  /// The casting's stated form deviation (the recipe's [vision] form_deviation_mm): a riser's
+  /// excess the tool cannot reach that is no higher than this over the template may be the
+  /// casting's own face, and is left and reported like PlannerSettings::leave_unreachable_mm's.
+  double form_deviation_mm = 0.0;
 };
 
 /// Planner limits and tunables (safety limits come from the cell's [safety]).

@@ -66,6 +66,12 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& recipe, const vision::I
 struct CellBias {
   Vec3 bias_mm = Vec3::Zero();
   std::size_t updates = 0;        ///< cycles that contributed since the last reset
+  /// Projector onto the directions any update observed (the estimate is learned along them).
+  Eigen::Matrix3d learned = Eigen::Matrix3d::Zero();
+  /// The measurements' scatter about the estimate (mm^2, base frame): an exponentially weighted
+  /// mean of (measured - estimate)(measured - estimate)^T along the observed directions, with
+  /// the same gain as the estimate.
+  Eigen::Matrix3d scatter_mm2 = Eigen::Matrix3d::Zero();
   std::string calibration_id;     ///< the calibration it was learned under (reset when it changes)
   std::string tools_id;           ///< the tools it was learned with (reset when they change)
 
@@ -75,6 +81,25 @@ struct CellBias {
   void reset() { *this = CellBias{}; }
   [[nodiscard]] std::string describe() const;  ///< "(x, y, z) mm after N cycles"
 };
+
+/// How far from where the plan says the tool may really cut, base frame: the bound along a unit
+/// direction n is sqrt(n^T bound_mm2 n). From the cell's stated accuracies ([safety]
+/// calibration_accuracy_mm, robot_accuracy_mm, robot_repeatability_mm, combined as a root sum of
+/// squares) and what it learned: along the learned directions the systematic part (calibration,
+/// robot accuracy) is replaced by the estimate's own uncertainty, what is left of the stated
+/// systematic error after `updates` steps of `gain` plus the measurements' scatter through the
+/// estimate's smoothing (gain / (2 - gain) of it). Repeatability stays: learning cannot take it.
+/// Nothing stated: zero (the regions' allowances alone).
+/// The planner keeps every path at least this far from the template along the surface's normal
+/// (planning::RegionInput::placement_bound_mm2). Tests: Compensation.PlacementUncertainty*.
+struct PlacementUncertainty {
+  Eigen::Matrix3d bound_mm2 = Eigen::Matrix3d::Zero();
+  [[nodiscard]] double along_mm(const Vec3& unit_base) const;
+  /// "0.26 mm sideways, 0.16 mm vertically" (the bounds along base x-y and z).
+  [[nodiscard]] std::string describe() const;
+};
+PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const CellBias& bias,
+                                           const config::CompensationSection& settings);
 
 /// The state file: JSON {"bias_mm": [x, y, z], "updates": n, "calibration_id", "tools_id"}.
 /// load_cell_bias() returns a zero bias when the file does not exist; a file it cannot read is

@@ -144,6 +144,10 @@ struct ProcessOptions {
   /// commanded shifted by minus it, so that the tool cuts where the plan says. Planning and
   /// validation work in the part frame as located, then place it in the base frame shifted.
   Vec3 cell_bias_mm = Vec3::Zero();
+  /// How far the tool may really cut from where it is told (base frame, mm^2; the bound along a
+  /// unit n is sqrt(n^T M n)): every region keeps at least this from the template along the
+  /// surface's normal where it exceeds the region's allowance (process::placement_uncertainty).
+  Eigen::Matrix3d placement_bound_mm2 = Eigen::Matrix3d::Zero();
 };
 
 struct ProcessOutput {
