@@ -219,6 +219,10 @@ struct RunFacts {
   std::vector<double> seed_gouges;
   double max_gouge = 0.0;
   std::string worst_where;
+  std::vector<double> seed_body_cuts;  ///< the deepest cut into each casting's own body
+  /// castings cut deeper than gouge_depth_mm into their own body, of those read NOK, and read
+  /// NOK for a gouge with no cut that deep
+  std::size_t body_cut = 0, body_cut_nok = 0, nok_without_body_cut = 0;
   std::vector<double> plan_ms;  ///< sorted
   std::map<std::string, std::size_t> verdicts;
   std::size_t gouged = 0, missed = 0;
@@ -271,11 +275,23 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
   m << buf;
   std::snprintf(buf, sizeof buf, "| castings gouged deeper than %.2f mm | %zu |\n", kMaxGougeMm, over);
   m << buf;
+  std::vector<double> b = f.seed_body_cuts;
+  std::sort(b.begin(), b.end());
+  std::snprintf(buf, sizeof buf,
+                "| deepest cut into the casting's own body per casting (its as-cast face, form deviation kept) | "
+                "median %.3f mm, worst %.3f mm |\n",
+                b.empty() ? 0.0 : b[b.size() / 2], b.empty() ? 0.0 : b.back());
+  m << buf;
   std::string v;
   for (const auto& [k, n] : f.verdicts) v += (v.empty() ? "" : ", ") + std::to_string(n) + " " + k;
   std::snprintf(buf, sizeof buf,
                 "| the cell's verification | %s; %zu of %zu castings gouged deeper than gouge_depth_mm = %.2f mm read NOK |\n",
                 v.c_str(), f.gouged - f.missed, f.gouged, f.gouge_depth_mm);
+  m << buf;
+  std::snprintf(buf, sizeof buf,
+                "| the verification against the as-cast face | %zu of %zu castings cut deeper than %.2f mm into "
+                "their own body read NOK; %zu read NOK for a gouge with no cut that deep |\n",
+                f.body_cut_nok, f.body_cut, f.gouge_depth_mm, f.nok_without_body_cut);
   m << buf;
   std::snprintf(buf, sizeof buf, "| planning per casting | median %.1f ms, worst %.1f ms |\n\n",
                 f.plan_ms.empty() ? 0.0 : f.plan_ms[f.plan_ms.size() / 2], f.plan_ms.empty() ? 0.0 : f.plan_ms.back());
@@ -395,6 +411,8 @@ int trial(const Args& a) {
   std::optional<Casting> reference;         // the first ground casting (batch consistency)
   std::size_t failures = 0, done = 0, gouged_seeds = 0, missed_gouges = 0;
   std::vector<double> seed_gouges;             // the deepest gouge of each ground casting
+  std::vector<double> seed_body_cuts;          // the deepest cut into each one's own body
+  std::size_t body_cut = 0, body_cut_nok = 0, nok_without_body_cut = 0;  // as RunFacts
   std::string worst_where;                     // where the deepest of all was
   std::map<std::string, std::size_t> verdicts;  // the cell's verification per casting
   std::map<std::string, double> type_gouge;    // the deepest gouge per region type
@@ -452,6 +470,7 @@ int trial(const Args& a) {
     // Grind region by region, each with its own tool.
     std::fprintf(stderr, ", grind");
     std::map<std::string, std::vector<Gouge>> gouges_by_region;
+    std::map<std::string, Gouge> body_cut_by_region;  // the deepest cut into this casting's own body
     std::vector<Gouge> gouges;
     bool grind_failed = false;
     GrindOptions go;
@@ -483,6 +502,9 @@ int trial(const Args& a) {
           gouges_by_region[run.region].push_back(gg);
           gouges.push_back(gg);
         }
+      for (const auto& run : runs->runs)
+        if (run.result.deepest_body_cut.depth_mm > body_cut_by_region[run.region].depth_mm)
+          body_cut_by_region[run.region] = run.result.deepest_body_cut;
     }
     if (grind_failed) {
       (void)fettle::write_file_atomic(dir / "evaluation.json", sj.dump(2) + "\n");
@@ -545,7 +567,7 @@ int trial(const Args& a) {
       sj["verify_footprint_points"] = ver->footprint_points;
     }
     json regions = json::array();
-    double seed_gouge = 0.0;
+    double seed_gouge = 0.0, seed_body_cut = 0.0;
     bool seed_ok = true;
     std::string left;  // material the planner left, for the progress line
     for (std::size_t r = 0; r < recipe.regions.size(); ++r) {
@@ -587,6 +609,13 @@ int trial(const Args& a) {
       rj["batch_consistency"] = region_eval_json(e2);
       rj["gouges"] = gouges_by_region[region.name].size();
       rj["max_gouge_depth_mm"] = gmax;
+      // into the casting's own body (the as-cast face, its form deviation kept): what a person
+      // sees cut; the gouge above is against the nominal
+      const Gouge& cut = body_cut_by_region[region.name];
+      seed_body_cut = std::max(seed_body_cut, cut.depth_mm);
+      rj["max_body_cut_mm"] = cut.depth_mm;
+      if (cut.depth_mm > 0.0)
+        rj["deepest_body_cut_mm"] = {cut.position_mm.x(), cut.position_mm.y(), cut.position_mm.z()};
       if (deepest != nullptr)  // where: part frame of the casting (its true pose)
         rj["deepest_gouge_mm"] = {deepest->position_mm.x(), deepest->position_mm.y(), deepest->position_mm.z()};
       // Where the vision stage put the region: its pose's error against the casting's true
@@ -663,6 +692,14 @@ int trial(const Args& a) {
     gouged_seeds += gouged ? 1 : 0;
     missed_gouges += missed ? 1 : 0;
     sj["gouge_missed_by_verification"] = missed;
+    // The verification judges against the casting's own faces: the same account against its body.
+    seed_body_cuts.push_back(seed_body_cut);
+    const bool cut_deep = seed_body_cut > recipe.verification.gouge_depth_mm;
+    const bool nok_for_gouge = ver && ver->worst_gouge.has_value();
+    body_cut += cut_deep ? 1 : 0;
+    body_cut_nok += cut_deep && ver && ver->verdict == fettle::process::Verdict::nok ? 1 : 0;
+    nok_without_body_cut += nok_for_gouge && !cut_deep ? 1 : 0;
+    sj["max_body_cut_mm"] = seed_body_cut;
     sj["regions"] = regions;
     sj["gouges"] = gouges.size();
     sj["max_gouge_depth_mm"] = seed_gouge;
@@ -676,13 +713,13 @@ int trial(const Args& a) {
     seeds_json.push_back(sj);
     std::string vnote;
     if (ver && ver->worst_gouge) vnote = " (" + ver->worst_gouge->describe() + ")";
-    std::fprintf(stderr, ": %s, verdict %s%s, plan %.1f ms, max gouge %.3f mm (%.1f s)%s\n",
+    std::fprintf(stderr, ": %s, verdict %s%s, plan %.1f ms, max gouge %.3f mm, into its own body %.3f mm (%.1f s)%s\n",
                  missed                 ? "GOUGE MISSED"
                  : biased               ? (gouged ? "gouged on purpose, caught" : "not gouged past gouge_depth_mm")
                  : seed_ok && seed_gouge <= kMaxGougeMm ? "ok"
                                                         : "OUT OF TOLERANCE",
                  ver ? fettle::process::to_string(ver->verdict) : "error", vnote.c_str(), pms, seed_gouge,
-                 app::seconds_since(ts), left.c_str());
+                 seed_body_cut, app::seconds_since(ts), left.c_str());
   }
 
   // Summary: the paper's tables.
@@ -746,6 +783,10 @@ int trial(const Args& a) {
   summary["gouges_missed_by_verification"] = missed_gouges;
   summary["failures"] = failures;
   summary["max_gouge_depth_mm"] = max_gouge;
+  summary["max_body_cut_mm"] = seed_body_cuts.empty() ? 0.0 : *std::max_element(seed_body_cuts.begin(), seed_body_cuts.end());
+  summary["castings_cut_deeper_than_gouge_depth_into_their_body"] = body_cut;
+  summary["of_those_read_nok"] = body_cut_nok;
+  summary["nok_for_a_gouge_not_that_deep_in_the_body"] = nok_without_body_cut;
   summary["acceptance"] = pass;
   summary["template_comparison"] = type_stats_json(t1);
   summary["casting_comparison"] = type_stats_json(t1b);
@@ -756,7 +797,8 @@ int trial(const Args& a) {
                                   summary_markdown({first, last, a.seeds, drawn, biased, path_bias, count, failures,
                                                     app::seconds_since(t0) / 60.0, scanner.config().intrinsics.width,
                                                     scanner.config().intrinsics.height, seed_gouges, max_gouge,
-                                                    worst_where, plan_ms, verdicts, gouged_seeds, missed_gouges,
+                                                    worst_where, seed_body_cuts, body_cut, body_cut_nok,
+                                                    nok_without_body_cut, plan_ms, verdicts, gouged_seeds, missed_gouges,
                                                     recipe.verification.gouge_depth_mm, pass,
                                                     a.errors.file.string(), a.errors.cell_seed},
                                                    t1, type_gouge));

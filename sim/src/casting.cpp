@@ -230,6 +230,12 @@ double CastingModel::golden_sdf(const Vec3& p) const {
   return d;
 }
 
+double CastingModel::form_mm(double x, double y) const {
+  if (form_amp_mm == 0.0) return 0.0;
+  return form_amp_mm * (0.5 * std::sin(form_kx * x + form_phase[0]) * std::cos(form_ky * y + form_phase[1]) +
+                        0.5 * std::sin(form_kx * 0.7 * x + form_ky * 0.6 * y + form_phase[2]));
+}
+
 void CastingModel::rebuild_surface(int i0, int j0, int i1, int j1) {
   if (i1 < 0) {
     i0 = 0, j0 = 0, i1 = body.nx, j1 = body.ny;
@@ -388,6 +394,7 @@ void Casting::remove_all_material() {
   model_->rebuild_surface();
 }
 double Casting::golden_sdf_mm(const Vec3& p_part) const { return model_->golden_sdf(p_part); }
+double Casting::form_deviation_mm(double x_mm, double y_mm) const { return model_->form_mm(x_mm, y_mm); }
 
 std::vector<SurfacePoint> Casting::sample_golden_surface(double spacing_mm) const {
   const auto& f = model_->nominal;
@@ -531,16 +538,15 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
   if (amp > 0) {
     std::array<double, 4> ph{};
     for (auto& p : ph) p = rng.uniform(0, 2 * std::numbers::pi);
-    const double kx = 2 * std::numbers::pi / rng.uniform(90.0, 200.0);
-    const double ky = 2 * std::numbers::pi / rng.uniform(90.0, 200.0);
+    m->form_amp_mm = amp;
+    m->form_phase = {ph[0], ph[1], ph[2]};
+    m->form_kx = 2 * std::numbers::pi / rng.uniform(90.0, 200.0);
+    m->form_ky = 2 * std::numbers::pi / rng.uniform(90.0, 200.0);
     for (int j = 0; j < nom.ny; ++j)
       for (int i = 0; i < nom.nx; ++i) {
         float& h = m->body.at(i, j);
         if (h <= kNoPart) continue;
-        const double x = nom.cx(i), y = nom.cy(j);
-        const double d = 0.5 * std::sin(kx * x + ph[0]) * std::cos(ky * y + ph[1]) +
-                         0.5 * std::sin(kx * 0.7 * x + ky * 0.6 * y + ph[2]);
-        h = static_cast<float>(h + amp * d);
+        h = static_cast<float>(h + m->form_mm(nom.cx(i), nom.cy(j)));
       }
   } else {
     for (int k = 0; k < 4; ++k) (void)rng.uniform();

@@ -83,6 +83,15 @@ class CastingModel {
   /// Golden body top at (x, y) from the primitives; NaN off the body.
   [[nodiscard]] double nominal_top(double x, double y) const;
   [[nodiscard]] double golden_sdf(const Vec3& p) const;
+  /// This casting's smooth form deviation at (x, y): how far its body's top stands over the
+  /// nominal's (0 for a golden casting).
+  [[nodiscard]] double form_mm(double x, double y) const;
+  /// This casting's own body as a signed distance: the golden solid moved up by the form
+  /// deviation at each (x, y) (exact on top faces; walls keep their place, their top edges move).
+  [[nodiscard]] double body_sdf(const Vec3& p) const { return golden_sdf(p - Vec3(0.0, 0.0, form_mm(p.x(), p.y()))); }
+  /// The form deviation's draw: amplitude, wave numbers and phases (amplitude 0: none).
+  double form_amp_mm = 0.0, form_kx = 0.0, form_ky = 0.0;
+  std::array<double, 3> form_phase{};
   /// Rebuilds `surface`, the tile and the cell maxima for cells [i0, i1) x [j0, j1) (all when empty).
   void rebuild_surface(int i0 = 0, int j0 = 0, int i1 = -1, int j1 = -1);
   [[nodiscard]] std::vector<RegionTruth> truth() const;

@@ -261,6 +261,10 @@ Result<PlannedGrind> grind_by_region(Casting& casting, const Trajectory& traject
       gouge.pose_index += out.total.poses;  // an index into all the runs' poses
       out.total.gouges.push_back(gouge);
     }
+    if (g->deepest_body_cut.depth_mm > out.total.deepest_body_cut.depth_mm) {
+      out.total.deepest_body_cut = g->deepest_body_cut;
+      out.total.deepest_body_cut.pose_index += out.total.poses;
+    }
     out.total.poses += g->poses;
     run.result = std::move(*g);
     out.runs.push_back(std::move(run));
@@ -369,6 +373,29 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
           profile, [&](const Vec3& x) { return -m.golden_sdf(x); }, [&](const Vec3& x) { return Vec3(c + R_part_tool * x); });
       if (d > depth) depth = d, deepest = q;
     }
+    // The same against this casting's own body (its form deviation kept).
+    double body_depth = 0.0;
+    Vec3 body_deepest = c;
+    if (m.form_amp_mm == 0.0) {
+      body_depth = depth, body_deepest = deepest;
+    } else if (tool.shape == config::ToolShape::ball) {
+      body_depth = tool.radius - m.body_sdf(c);
+      if (body_depth > res.deepest_body_cut.depth_mm) {
+        constexpr double h = 0.01;
+        Vec3 g;
+        for (int k = 0; k < 3; ++k) {
+          Vec3 dp = Vec3::Zero();
+          dp(k) = h;
+          g(k) = m.body_sdf(c + dp) - m.body_sdf(c - dp);
+        }
+        body_deepest = c - tool.radius * (g.norm() > 1e-12 ? Vec3(g.normalized()) : Vec3(Vec3::UnitZ()));
+      }
+    } else {
+      const auto [d, q] = deepest_point(
+          profile, [&](const Vec3& x) { return -m.body_sdf(x); }, [&](const Vec3& x) { return Vec3(c + R_part_tool * x); });
+      body_depth = d, body_deepest = q;
+    }
+    if (body_depth > res.deepest_body_cut.depth_mm) res.deepest_body_cut = Gouge{body_deepest, body_depth, pi};
     if (depth > opt.gouge_threshold_mm) {
       if (!in_gouge || depth > current.depth_mm) current = Gouge{deepest, depth, pi};
       in_gouge = true;

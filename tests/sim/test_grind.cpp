@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <fstream>
+#include <optional>
 #include <unistd.h>
 
 #include "fettle/core/error.hpp"
@@ -141,6 +142,41 @@ TEST(SimGrind, ACalibrationBiasCutsThatDeepAndOnlyCutsBeyondTheThresholdAreGouge
   const fettle::Vec3 part_s = d.T_base_part().inverse() * shifted->gouges[0].position_mm;
   EXPECT_NEAR(part_c.y(), f.start_mm[1], 0.3);
   EXPECT_NEAR(part_s.y() - part_c.y(), 1.0, 0.3);
+}
+
+// A casting whose body stands over the nominal (its form deviation): a flat tool held 0.05 mm
+// over the nominal face cuts into the casting's own body by the rest, and is no gouge against
+// the nominal; held 0.05 mm over its own face it cuts neither.
+TEST(SimGrind, ACutIntoTheCastingsOwnBodyIsMeasuredApartFromTheNominal) {
+  auto recipe = sim_test::pump_body();
+  recipe.geometry.variation.form_deviation_mm = 0.5;
+  // a place on the pad's top (nominal z = 45) clear of the riser where the body stands 0.2 mm
+  // or more over the nominal (a 6 mm flat tool there)
+  std::optional<Casting> found;
+  fettle::Vec3 at = fettle::Vec3::Zero();
+  for (std::uint64_t seed = 1; seed <= 40 && !found; ++seed) {
+    Casting c = Casting::make(recipe, seed);
+    for (const double x : {-104.0, -61.0})
+      for (const double y : {16.0, 79.0})
+        if (!found && c.form_deviation_mm(x, y) >= 0.2) found = c, at = fettle::Vec3(x, y, 45.0);
+  }
+  ASSERT_TRUE(found) << "no casting of 40 stands 0.2 mm over the nominal at a corner of the pad";
+  double form = -1.0;  // the highest the body stands under the tool's 3 mm radius
+  for (double dx = -3.0; dx <= 3.0; dx += 0.1)
+    for (double dy = -3.0; dy <= 3.0; dy += 0.1)
+      if (dx * dx + dy * dy <= 9.0) form = std::max(form, found->form_deviation_mm(at.x() + dx, at.y() + dy));
+  GrindOptions o = disc();
+  o.tool.diameter_mm = 6.0;
+  Casting nominal_face = *found;
+  auto low = grind(nominal_face, plunge(nominal_face, at + fettle::Vec3(0.0, 0.0, 0.05)), o);
+  ASSERT_TRUE(low.ok()) << low.error().message;
+  EXPECT_TRUE(low->gouges.empty()) << "above the nominal";
+  EXPECT_NEAR(low->deepest_body_cut.depth_mm, form - 0.05, 0.01);
+  Casting own_face = *found;
+  auto high = grind(own_face, plunge(own_face, at + fettle::Vec3(0.0, 0.0, form + 0.05)), o);
+  ASSERT_TRUE(high.ok()) << high.error().message;
+  EXPECT_TRUE(high->gouges.empty());
+  EXPECT_EQ(high->deepest_body_cut.depth_mm, 0.0);
 }
 
 // A disc's rim, tilted, dips 0.1 mm into the flat pad face under the riser at a point between

@@ -119,6 +119,9 @@ class Casting {
   [[nodiscard]] bool on_fixture() const;
   /// Signed distance to the golden body solid (negative inside), part frame.
   [[nodiscard]] double golden_sdf_mm(const Vec3& p_part) const;
+  /// This casting's form deviation at (x, y), part frame: how far its body's top stands over
+  /// the nominal's (0 for a golden casting or one drawn without variation).
+  [[nodiscard]] double form_deviation_mm(double x_mm, double y_mm) const;
 
   [[nodiscard]] const CastingModel& model() const { return *model_; }
   CastingModel& model() { return *model_; }
@@ -301,6 +304,10 @@ struct GrindResult {
   std::size_t poses = 0;                      ///< interpolated poses executed
   std::vector<RegionTruth> before, after;     ///< material per region
   std::vector<Gouge> gouges;
+  /// The deepest the tool went into this casting's own body (the nominal with its form
+  /// deviation; `gouges` are against the nominal): where a person sees a cut into the as-cast
+  /// face. 0 when it never went below it.
+  Gouge deepest_body_cut;
   [[nodiscard]] double removed_mm3() const;
   [[nodiscard]] double max_gouge_depth_mm() const;
 };
