@@ -63,6 +63,13 @@ class PointCells {
   std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
 };
 
+/// The q-quantile of `values` (the element of rank round(q (n - 1)); reorders them). Not empty.
+double quantile_of(std::vector<float>& values, double q) {
+  const auto at = values.begin() + static_cast<std::ptrdiff_t>(std::clamp(q, 0.0, 1.0) * static_cast<double>(values.size() - 1) + 0.5);
+  std::nth_element(values.begin(), at, values.end());
+  return static_cast<double>(*at);
+}
+
 /// The median of `values` (the upper one of an even count; reorders them). Not empty.
 double median_of(std::vector<float>& values) {
   const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
@@ -246,9 +253,9 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
                                   const Progress& progress) {
   const auto& recipe = loaded.recipe;
   // The casting's own face (options.before): where the first scan saw the body's upward faces
-  // near a point (its points on upward template faces within the form deviation of the
-  // template: neither flash nor riser; within 1.5 mm, else 4, else 8), the median of their
-  // signed distances; the same camera saw both scans, so its calibration and smooth depth errors
+  // near a point (its points on upward template faces within twice the form deviation of the
+  // template; within 1.5 mm, else 4, else 8), the lower quartile of their signed distances
+  // (material stands on the face: a fin's root, a riser's foot); the same camera saw both scans, so its calibration and smooth depth errors
   // cancel. Where the first scan saw only material within 8 mm (under a wide riser), the
   // region's form offset (a plane fitted in its ROI). Either is scaled by how much the
   // template's face there points up (the z-derivative of the signed distance: 1 on a top face,
@@ -260,6 +267,12 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   const double form_mm = recipe.vision.form_deviation_mm;
   constexpr std::array<double, 3> kFaceRadiiMm{1.5, 4.0, 8.0};
   constexpr std::size_t kFacePoints = 5;
+  // The first scan's points within twice the form deviation of the template (the form, plus as
+  // much again from the pose a best fit to a deformed body takes: a plate top stands 0.5-0.8 mm
+  // over the located template under the realistic budget), and of them the lower quartile: what
+  // stands on a face (a fin's root, a riser's foot, a wall's top edge) is above it, not below.
+  constexpr double kFaceWindow = 2.0;
+  constexpr double kFaceQuantile = 0.25;
   std::vector<Eigen::Vector3f> first_pts;  // the first scan in the re-scan's part frame (set once it is located)
   std::optional<PointCells> first;
   std::vector<float> first_sd;  // the first scan's signed distances, NaN until asked for
@@ -290,10 +303,11 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
             first_sd[i] = static_cast<float>(loaded.template_sdf(x));
             first_up[i] = static_cast<float>(upness(x));
           }
-          if (first_up[i] >= kUpwardFace && std::abs(first_sd[i]) <= form_mm) near_first.push_back(first_sd[i]);
+          if (first_up[i] >= kUpwardFace && std::abs(first_sd[i]) <= kFaceWindow * form_mm)
+            near_first.push_back(first_sd[i]);
         });
         if (near_first.size() < kFacePoints) continue;
-        return d - up * median_of(near_first);
+        return d - up * quantile_of(near_first, kFaceQuantile);
       }
     }
     // the plane held within twice the form deviation (the form, plus as much again from the

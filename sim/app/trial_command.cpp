@@ -59,6 +59,7 @@ struct Args {
   app::ScannerOptions scanner;
   bool log_level_given = false;  ///< --log-level was given: the logs as asked
   bool no_learning = false;      ///< --no-learning: the cell does not learn its bias
+  bool save_verification = false;  ///< --save-verification: verify_<region>.csv per casting
 };
 
 /// Seeds drawn at run time start above this: seeds 1-50 are the tests' own, known castings,
@@ -668,7 +669,16 @@ int trial(const Args& a) {
           }
         }
       if (ver)
-        for (const auto& v : ver->regions)
+        for (const auto& v : ver->regions) {
+          if (v.name == region.name && a.save_verification) {
+            std::ostringstream csv;
+            csv << "x_mm,y_mm,z_mm,residual_mm\n";
+            for (std::size_t k = 0; k < v.roi_points_part.size(); ++k)
+              csv << v.roi_points_part[k].x() << ',' << v.roi_points_part[k].y() << ',' << v.roi_points_part[k].z() << ','
+                  << v.residual_mm[k] << '\n';
+            if (auto st = fettle::write_file_atomic(dir / ("verify_" + v.name + ".csv"), csv.str()); !st)
+              throw fettle::UserError(st.error().message);
+          }
           if (v.name == region.name)
             rj["verify"] = {{"verdict", fettle::process::to_string(v.verdict)},
                             {"reason", v.reason},
@@ -676,6 +686,7 @@ int trial(const Args& a) {
                             {"share_over_0_3_pct", v.share_over_0_3_pct},
                             {"share_over_0_5_pct", v.share_over_0_5_pct},
                             {"max_residual_mm", v.max_residual_mm}};
+        }
       regions.push_back(rj);
       std::vector<Eigen::Vector3f> roi;
       for (const auto& p : pts.clean)
@@ -830,6 +841,9 @@ FETTLE_COMMAND("trial", [](CLI::App& app, const fettle::cli::Common& common) {
   app::add_scanner_options(cmd, a->scanner);
   cmd->add_flag("--no-learning", a->no_learning,
                 "The cell does not learn its bias from the verification scans (as [compensation] enabled = false)");
+  cmd->add_flag("--save-verification", a->save_verification,
+                "Write each casting's verify_<region>.csv: the re-scan's ROI points (part frame, mm) and their "
+                "residuals as the cell's verification judged them (mm over the casting's face; < 0: below it)");
   auto g = std::make_shared<std::pair<fs::path, fs::path>>();
   auto spacing = std::make_shared<double>(0.5);
   auto* gcmd = app.add_subcommand("golden", "Write the golden template (part frame, normals) a recipe with [template] source = \"simulator\" needs");

@@ -353,48 +353,31 @@ Result<GrindResult> grind(Casting& casting, const Trajectory& trajectory, const 
     const Vec3 c = T_part_base * x_base + (tool.shape == config::ToolShape::ball ? Vec3(tool.radius * a) : Vec3(Vec3::Zero()));
     const Eigen::Matrix3d R_part_tool = T_part_base.linear() * p.q.toRotationMatrix();
 
-    // Gouge: deepest penetration of the tool surface into the golden body.
-    double depth = 0;
-    Vec3 deepest = c;
-    if (tool.shape == config::ToolShape::ball) {
-      depth = tool.radius - m.golden_sdf(c);
-      if (depth > opt.gouge_threshold_mm) {  // the ball's point toward the nearest surface: a wall beside it too
-        constexpr double h = 0.01;
-        Vec3 g;
-        for (int k = 0; k < 3; ++k) {
-          Vec3 dp = Vec3::Zero();
-          dp(k) = h;
-          g(k) = m.golden_sdf(c + dp) - m.golden_sdf(c - dp);
-        }
-        deepest = c - tool.radius * (g.norm() > 1e-12 ? Vec3(g.normalized()) : Vec3(Vec3::UnitZ()));
+    // The tool's deepest penetration into a solid (its signed distance) and where: a ball's
+    // point toward the solid's nearest surface (a wall beside it too), found only when deeper
+    // than `locate_above` (six more distances).
+    const auto penetration = [&](const auto& sdf, double locate_above) -> std::pair<double, Vec3> {
+      if (tool.shape != config::ToolShape::ball)
+        return deepest_point(
+            profile, [&](const Vec3& x) { return -sdf(x); }, [&](const Vec3& x) { return Vec3(c + R_part_tool * x); });
+      const double d = tool.radius - sdf(c);
+      if (!(d > locate_above)) return {d, c};
+      constexpr double h = 0.01;
+      Vec3 g;
+      for (int k = 0; k < 3; ++k) {
+        Vec3 dp = Vec3::Zero();
+        dp(k) = h;
+        g(k) = sdf(c + dp) - sdf(c - dp);
       }
-    } else {
-      const auto [d, q] = deepest_point(
-          profile, [&](const Vec3& x) { return -m.golden_sdf(x); }, [&](const Vec3& x) { return Vec3(c + R_part_tool * x); });
-      if (d > depth) depth = d, deepest = q;
-    }
-    // The same against this casting's own body (its form deviation kept).
-    double body_depth = 0.0;
-    Vec3 body_deepest = c;
-    if (m.form_amp_mm == 0.0) {
-      body_depth = depth, body_deepest = deepest;
-    } else if (tool.shape == config::ToolShape::ball) {
-      body_depth = tool.radius - m.body_sdf(c);
-      if (body_depth > res.deepest_body_cut.depth_mm) {
-        constexpr double h = 0.01;
-        Vec3 g;
-        for (int k = 0; k < 3; ++k) {
-          Vec3 dp = Vec3::Zero();
-          dp(k) = h;
-          g(k) = m.body_sdf(c + dp) - m.body_sdf(c - dp);
-        }
-        body_deepest = c - tool.radius * (g.norm() > 1e-12 ? Vec3(g.normalized()) : Vec3(Vec3::UnitZ()));
-      }
-    } else {
-      const auto [d, q] = deepest_point(
-          profile, [&](const Vec3& x) { return -m.body_sdf(x); }, [&](const Vec3& x) { return Vec3(c + R_part_tool * x); });
-      body_depth = d, body_deepest = q;
-    }
+      return {d, c - tool.radius * (g.norm() > 1e-12 ? Vec3(g.normalized()) : Vec3(Vec3::UnitZ()))};
+    };
+    // Gouge: deepest penetration of the tool surface into the golden body; the same into this
+    // casting's own body (its form deviation kept).
+    const auto [depth, deepest] =
+        penetration([&](const Vec3& x) { return m.golden_sdf(x); }, opt.gouge_threshold_mm);
+    const auto [body_depth, body_deepest] =
+        m.form_amp_mm == 0.0 ? std::pair<double, Vec3>{depth, deepest}
+                             : penetration([&](const Vec3& x) { return m.body_sdf(x); }, res.deepest_body_cut.depth_mm);
     if (body_depth > res.deepest_body_cut.depth_mm) res.deepest_body_cut = Gouge{body_deepest, body_depth, pi};
     if (depth > opt.gouge_threshold_mm) {
       if (!in_gouge || depth > current.depth_mm) current = Gouge{deepest, depth, pi};
