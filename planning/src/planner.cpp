@@ -879,13 +879,7 @@ RegionInput kept_from_placement(const RegionInput& in) {
     extra = [most](const Vec3&) { return most; };
   } else {
     extra = [base, M, allowance, most](const Vec3& p) {
-      constexpr double h = 0.25;
-      Vec3 g;
-      for (int k = 0; k < 3; ++k) {
-        Vec3 d = Vec3::Zero();
-        d(k) = h;
-        g(k) = base(p + d) - base(p - d);
-      }
+      Vec3 g = sdf_gradient(base, p, 0.25);
       const double n = g.norm();
       if (!(n > 1e-9)) return most;
       g /= n;

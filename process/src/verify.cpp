@@ -71,11 +71,7 @@ double quantile_of(std::vector<float>& values, double q) {
 }
 
 /// The median of `values` (the upper one of an even count; reorders them). Not empty.
-double median_of(std::vector<float>& values) {
-  const auto mid = values.begin() + static_cast<std::ptrdiff_t>(values.size() / 2);
-  std::nth_element(values.begin(), mid, values.end());
-  return static_cast<double>(*mid);
-}
+double median_of(std::vector<float>& values) { return quantile_of(values, 0.5); }
 
 /// The median signed distance of the points within `radius` of point k (k included): a gouge's
 /// depth as its neighbourhood confirms it. nullopt with fewer than 3 points there (an isolated
@@ -255,8 +251,8 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   // The casting's own face (options.before): where the first scan saw the body's upward faces
   // near a point (its points on upward template faces within twice the form deviation of the
   // template; within 1.5 mm, else 4, else 8), the lower quartile of their signed distances
-  // (material stands on the face: a fin's root, a riser's foot); the same camera saw both scans, so its calibration and smooth depth errors
-  // cancel. Where the first scan saw only material within 8 mm (under a wide riser), the
+  // (material stands on the face: a fin's root, a riser's foot); the same camera saw both
+  // scans, so its calibration and smooth depth errors cancel. Where the first scan saw only material within 8 mm (under a wide riser), the
   // region's form offset (a plane fitted in its ROI). Either is scaled by how much the
   // template's face there points up (the z-derivative of the signed distance: 1 on a top face,
   // 0 on a wall). Docs: docs/planning.md, "verify".
