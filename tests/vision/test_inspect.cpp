@@ -331,6 +331,42 @@ TEST(Excess, TheCastingsFormDeviationIsNotMaterial) {
   for (const auto& p : ex.points) EXPECT_LE(std::abs(p.x() - 6.0f), 3.3f) << "material off the bump";
 }
 
+// A face whose form waves +-0.5 mm with a 100 mm wavelength (sand-cast iron's; a plane through
+// 120 mm of it misses by more than 0.3 mm, and its crests stand at the template's form
+// deviation) with a bump of material on it: the local face follows the wave, so only the bump
+// is material.
+TEST(Excess, TheLocalFaceFollowsAFormThePlaneCannot) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto t = PreparedCloud::prepare(test::flat_square(60.0f), ps);
+  Cloud scene;
+  std::mt19937_64 rng(5);
+  std::normal_distribution<float> noise(0.0f, 0.02f);
+  const auto face = [](float x) { return 0.5f * std::sin(2.0f * static_cast<float>(std::numbers::pi) * x / 100.0f); };
+  const auto on_bump = [](float x, float y) { return std::abs(x - 6) <= 3 && std::abs(y) <= 3; };
+  for (float x = -60; x <= 60; x += 0.25f)
+    for (float y = -20; y <= 20; y += 0.25f)
+      scene.points.emplace_back(x, y, face(x) + (on_bump(x, y) ? 1.5f : 0.0f) + noise(rng));
+  ExcessSettings own;
+  own.form_deviation_mm = 0.5;
+  const auto ex = measure_excess(t, scene, own);
+  ASSERT_TRUE(ex.form.fitted);
+  double worst = 0.0, worst_plane = 0.0;
+  for (float x = -58; x <= 58; x += 0.5f)
+    for (float y = -18; y <= 18; y += 0.5f) {
+      if (std::abs(x - 6) <= 4 && std::abs(y) <= 4) continue;  // beside the bump
+      worst = std::max(worst, std::abs(ex.form.at(x, y) - face(x)));
+      worst_plane = std::max(worst_plane, std::abs(ex.form.plane_at(x, y) - face(x)));
+    }
+  EXPECT_LT(worst, 0.06) << "the local face";
+  EXPECT_GT(worst_plane, 0.3) << "a plane cannot follow it";
+  const std::size_t bump_points = 25 * 25;  // 6 x 6 mm at 0.25 mm
+  EXPECT_NEAR(static_cast<double>(ex.points.size()), static_cast<double>(bump_points), 0.1 * bump_points);
+  for (const auto& p : ex.points)
+    EXPECT_TRUE(std::abs(p.x() - 6.0f) <= 3.3f && std::abs(p.y()) <= 3.3f)
+        << "material off the bump at " << p.x() << ", " << p.y() << ", " << p.z();
+}
+
 // A scan voxelized in its own frame has the template's pitch but not its grid, and the voxels
 // on the rim average the top with the floor around it. Counting the template patches that own
 // a material point measures this disc 3 % large (the simulator's riser scans 2-10 % small);

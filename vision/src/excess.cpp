@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Cholesky>
 
@@ -33,19 +34,100 @@ std::vector<float> signed_distances(const PreparedCloud& templ, const std::vecto
 
 namespace {
 
+struct FaceSample {
+  double x, y, h;
+};
+
+/// The offset at (x, y) of a plane through the samples around it: least squares on
+/// (1, dx, dy), then again on the samples no more than 2.5 robust sigmas (at least 0.03 mm)
+/// above it and 4 (at least 0.05 mm) below, three times. What stands on a face lies above it
+/// (a fin's or a riser's foot), so the upper side is trimmed hard; below, only what no face
+/// has (a mixed pixel at a wall's foot), since the passes follow the face down. A plane rather
+/// than a quantile keeps a sloped face's offset at its centre (a quantile of a slope reads low).
+/// NaN where fewer than 8 samples or they lie on one line.
+double local_plane_at(const std::vector<FaceSample>& s, double x, double y) {
+  if (s.size() < 8) return std::numeric_limits<double>::quiet_NaN();
+  std::vector<char> keep(s.size(), 1);
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  std::vector<double> res(s.size());
+  for (int round = 0; round < 4; ++round) {
+    Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    std::size_t n = 0;
+    for (std::size_t k = 0; k < s.size(); ++k) {
+      if (!keep[k]) continue;
+      const Eigen::Vector3d a(1.0, s[k].x - x, s[k].y - y);
+      A += a * a.transpose(), b += a * s[k].h, ++n;
+    }
+    if (n < 8) return std::numeric_limits<double>::quiet_NaN();
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(A);
+    if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-6) return std::numeric_limits<double>::quiet_NaN();
+    c = ldlt.solve(b);
+    if (round == 3) break;
+    std::vector<double> abs_kept;
+    for (std::size_t k = 0; k < s.size(); ++k) {
+      res[k] = s[k].h - (c[0] + c[1] * (s[k].x - x) + c[2] * (s[k].y - y));
+      if (keep[k]) abs_kept.push_back(std::abs(res[k]));
+    }
+    const auto mid = abs_kept.begin() + static_cast<std::ptrdiff_t>(abs_kept.size() / 2);
+    std::nth_element(abs_kept.begin(), mid, abs_kept.end());
+    const double sigma = 1.4826 * *mid;
+    const double above = std::max(0.03, 2.5 * sigma), below = std::max(0.05, 4.0 * sigma);
+    for (std::size_t k = 0; k < s.size(); ++k) keep[k] = res[k] <= above && res[k] >= -below;
+  }
+  return c[0];
+}
+
+/// The local offsets of a FormOffset (see there): at nodes `pitch` apart over the samples'
+/// extent, local_plane_at() the samples within FormOffset::kLocalRadiusMm.
+void fit_local_offsets(const std::vector<FaceSample>& samples, FormOffset& f) {
+  if (samples.empty()) return;
+  const double p = f.local_pitch_mm, r = FormOffset::kLocalRadiusMm;
+  double x0 = samples.front().x, y0 = samples.front().y, x1 = x0, y1 = y0;
+  for (const auto& s : samples) x0 = std::min(x0, s.x), y0 = std::min(y0, s.y), x1 = std::max(x1, s.x), y1 = std::max(y1, s.y);
+  f.local_x0 = std::floor(x0 / p) * p, f.local_y0 = std::floor(y0 / p) * p;
+  f.local_nx = static_cast<int>(std::ceil((x1 - f.local_x0) / p)) + 1;
+  f.local_ny = static_cast<int>(std::ceil((y1 - f.local_y0) / p)) + 1;
+  // the samples by node cell (each sample in the cell of the node at or below it)
+  const auto cells = static_cast<std::size_t>(f.local_nx) * static_cast<std::size_t>(f.local_ny);
+  std::vector<std::vector<std::size_t>> in_cell(cells);
+  const auto cell_of = [&](int i, int j) { return static_cast<std::size_t>(j) * static_cast<std::size_t>(f.local_nx) + static_cast<std::size_t>(i); };
+  for (std::size_t k = 0; k < samples.size(); ++k) {
+    const int i = std::clamp(static_cast<int>((samples[k].x - f.local_x0) / p), 0, f.local_nx - 1);
+    const int j = std::clamp(static_cast<int>((samples[k].y - f.local_y0) / p), 0, f.local_ny - 1);
+    in_cell[cell_of(i, j)].push_back(k);
+  }
+  const int reach = static_cast<int>(std::ceil(r / p));
+  f.local.assign(cells, std::numeric_limits<float>::quiet_NaN());
+  std::vector<FaceSample> near;
+  for (int j = 0; j < f.local_ny; ++j)
+    for (int i = 0; i < f.local_nx; ++i) {
+      const double x = f.local_x0 + i * p, y = f.local_y0 + j * p;
+      near.clear();
+      for (int jj = std::max(0, j - reach); jj <= std::min(f.local_ny - 1, j + reach); ++jj)
+        for (int ii = std::max(0, i - reach); ii <= std::min(f.local_nx - 1, i + reach); ++ii)
+          for (const auto k : in_cell[cell_of(ii, jj)])
+            if ((samples[k].x - x) * (samples[k].x - x) + (samples[k].y - y) * (samples[k].y - y) <= r * r)
+              near.push_back(samples[k]);
+      f.local[cell_of(i, j)] = static_cast<float>(local_plane_at(near, x, y));
+    }
+}
+
 /// The robust plane of offsets (see FormOffset): least squares on (1, x, y), then twice again
 /// on the points within 3 robust sigmas (at least 0.05 mm) of it. Points on one line or fewer
-/// than 30 give the median offset alone; fewer than 10, nothing.
+/// than 30 give the median offset alone; fewer than 10, nothing. Then the local offsets.
 FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, const std::vector<int>& owner,
                            const std::vector<float>& height, double form_deviation_mm) {
   FormOffset f;
-  struct Sample { double x, y, h; };
-  std::vector<Sample> face;
+  std::vector<FaceSample> face, wide;  // within the form deviation of the template; within twice
   for (std::size_t i = 0; i < owner.size(); ++i) {
-    if (owner[i] < 0 || std::abs(height[i]) > form_deviation_mm) continue;
+    if (owner[i] < 0 || std::abs(height[i]) > 2.0 * form_deviation_mm) continue;
     if (T.fine.normals[static_cast<std::size_t>(owner[i])].z() < 0.8f) continue;  // upward faces only
-    face.push_back({scene.points[i].x(), scene.points[i].y(), height[i]});
+    wide.push_back({scene.points[i].x(), scene.points[i].y(), height[i]});
+    if (std::abs(height[i]) <= form_deviation_mm) face.push_back(wide.back());
   }
+  // the local fit's samples: within the form deviation of the plane (which carries the tilt
+  // a best fit to a deformed body takes), not of the template
   if (face.size() < 10) return f;
   const auto median_of = [](std::vector<double> v) {
     const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
@@ -84,7 +166,7 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
     f.fitted = true;
     std::vector<double> kept_res;
     for (std::size_t k = 0; k < face.size(); ++k) {
-      res[k] = std::abs(face[k].h - f.at(face[k].x, face[k].y));
+      res[k] = std::abs(face[k].h - f.plane_at(face[k].x, face[k].y));
       if (keep[k]) kept_res.push_back(res[k]);
     }
     const double gate = std::max(0.05, 3.0 * 1.4826 * median_of(kept_res));
@@ -95,10 +177,35 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
   for (std::size_t k = 0; k < face.size(); ++k)
     if (keep[k]) ss += res[k] * res[k], ++f.points;
   f.rms_mm = f.points > 0 ? std::sqrt(ss / static_cast<double>(f.points)) : 0.0;
+  std::erase_if(wide, [&](const FaceSample& w) { return std::abs(w.h - f.plane_at(w.x, w.y)) > form_deviation_mm; });
+  fit_local_offsets(wide, f);
   return f;
 }
 
 }  // namespace
+
+std::optional<double> FormOffset::local_at(double x_mm, double y_mm) const {
+  if (!fitted || local_nx < 2 || local_ny < 2) return std::nullopt;
+  double u = (x_mm - local_x0) / local_pitch_mm, v = (y_mm - local_y0) / local_pitch_mm;
+  const double beyond = kLocalRadiusMm / local_pitch_mm;
+  if (u < -beyond || v < -beyond || u > local_nx - 1 + beyond || v > local_ny - 1 + beyond) return std::nullopt;
+  u = std::clamp(u, 0.0, local_nx - 1.0), v = std::clamp(v, 0.0, local_ny - 1.0);
+  // the cell's lower-left node, the last row and column belonging to the cell below them
+  const int i = std::min(static_cast<int>(u), local_nx - 2), j = std::min(static_cast<int>(v), local_ny - 2);
+  const double fu = u - i, fv = v - j;
+  // bilinear over the nodes that hold an offset, their weights renormalised (the edge of the
+  // seen face keeps the offset it has there); none where none does
+  double sum = 0.0, weight = 0.0;
+  for (int b = 0; b < 2; ++b)
+    for (int a = 0; a < 2; ++a) {
+      const double node = local[static_cast<std::size_t>(j + b) * static_cast<std::size_t>(local_nx) + static_cast<std::size_t>(i + a)];
+      const double w = (a ? fu : 1.0 - fu) * (b ? fv : 1.0 - fv);
+      if (std::isnan(node) || w <= 0.0) continue;
+      sum += w * node, weight += w;
+    }
+  if (!(weight > 1e-9)) return std::nullopt;
+  return sum / weight;
+}
 
 ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_template, const ExcessSettings& settings) {
   ExcessMaterial out;
@@ -126,7 +233,8 @@ ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_
   const auto candidate = [&](std::size_t i) {
     const auto& p = scene_in_template.points[i];
     return owner[i] >= 0 && height[i] - out.form.at(p.x(), p.y()) > settings.threshold_mm &&
-           height[i] <= settings.max_height_mm;
+           height[i] <= settings.max_height_mm && (p.array() >= settings.material_min_mm.array()).all() &&
+           (p.array() <= settings.material_max_mm.array()).all();
   };
   std::vector<std::size_t> cand;
   for (std::size_t i = 0; i < owner.size(); ++i)

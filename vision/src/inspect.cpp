@@ -468,9 +468,11 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
       es.threshold_mm = rt.region.excess_threshold_mm;
       es.min_cluster_points = vs.excess_min_cluster_points;
       es.form_deviation_mm = vs.form_deviation_mm;
-      const Cloud local_part = transformed(local, r->T_scene_template.inverse());
-      const Cloud inside = crop_box(local_part, Transform::Identity(), box_min(rt.region, 0.0), box_max(rt.region, 0.0));
-      rr.excess = measure_excess(rt.cloud, inside, es);
+      // the material inside the ROI, the casting's face from its context too (a tool reaches
+      // beyond the ROI by its radius)
+      es.material_min_mm = box_min(rt.region, 0.0).cast<float>();
+      es.material_max_mm = box_max(rt.region, 0.0).cast<float>();
+      rr.excess = measure_excess(rt.cloud, transformed(local, r->T_scene_template.inverse()), es);
     }
     out.regions.push_back(std::move(rr));
   }
