@@ -843,21 +843,38 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
 
 namespace {
 
-/// The input with the template's surface raised by the casting's own form offset where that is
-/// positive (see RegionInput::form_offset_mm): the passes that end on a face end on the
-/// casting's face, which stands up to the form deviation over the nominal.
-RegionInput on_the_castings_face(const RegionInput& in) {
-  if (!in.form_offset_mm) return in;
+/// The casting's own face against the template at p (RegionInput::form_offset_mm): under it
+/// by no more than the stated form deviation, an offset lower than that not being the
+/// casting's form; 0 without an offset.
+double face_offset(const RegionInput& in, const Vec3& p) {
+  return in.form_offset_mm ? std::max(-std::max(0.0, in.form_deviation_mm), in.form_offset_mm(p)) : 0.0;
+}
+
+/// The input with the template's surface moved along z by move(p).
+RegionInput moved_along_z(const RegionInput& in, std::function<double(const Vec3&)> move) {
   RegionInput out = in;
   const auto base = in.template_sdf;
-  const auto offset = in.form_offset_mm;
-  const auto raise = [offset](const Vec3& p) { return std::max(0.0, offset(p)); };
-  out.template_sdf = SignedDistance([base, raise](const Vec3& p) { return base(p) - raise(p); },
-                                    [base, raise](const Vec3& p, double near_mm) {
-                                      const double r = raise(p);
-                                      return base.near(p, near_mm + r) - r;
+  out.template_sdf = SignedDistance([base, move](const Vec3& p) { return base(p) - move(p); },
+                                    [base, move](const Vec3& p, double near_mm) {
+                                      const double r = move(p);
+                                      return base.near(p, near_mm + std::abs(r)) - r;
                                     });
   return out;
+}
+
+/// The input with the template's surface moved to the casting's own face (face_offset): the
+/// passes that end on a face end on the casting's face, which stands up to the form deviation
+/// over or under the nominal.
+RegionInput on_the_castings_face(const RegionInput& in) {
+  if (!in.form_offset_mm) return in;
+  return moved_along_z(in, [in](const Vec3& p) { return face_offset(in, p); });
+}
+
+/// The surface validate() keeps every pose's clearance from: the template, lowered where the
+/// casting's own face is under it (the passes end there), never raised.
+RegionInput validated_against(const RegionInput& in) {
+  if (!in.form_offset_mm) return in;
+  return moved_along_z(in, [in](const Vec3& p) { return std::min(0.0, face_offset(in, p)); });
 }
 
 /// The input whose template keeps the placement bound where it exceeds the region's allowance
@@ -1047,8 +1064,11 @@ Status validate_limits(const Trajectory& trajectory, const PlannerSettings& sett
 }
 
 Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs, const PlannerSettings& settings) {
+  std::vector<RegionInput> floors;  // validated_against() each input
+  floors.reserve(inputs.size());
+  for (const auto& in : inputs) floors.push_back(validated_against(in));
   std::map<std::string, const RegionInput*> by_name;
-  for (const auto& in : inputs)
+  for (const auto& in : floors)
     if (in.region != nullptr) by_name[in.region->name] = &in;
   const double clearance = settings.min_clearance_mm;
   for (std::size_t i = 0; i < trajectory.points.size(); ++i) {

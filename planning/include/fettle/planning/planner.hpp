@@ -60,8 +60,8 @@ struct RegionInput {
   SignedDistance template_sdf;                     ///< the template surface, part frame
   /// The casting's own surface over the template's faces here, mm along the face normal (vision's
   /// FormOffset; empty: the nominal). A riser's and a straight flash's passes end that far over
-  /// the template where it is positive, so they end on the casting's own face; never below the
-  /// template, which stays what every pose keeps its clearance from (test
+  /// the template (under it where it is negative, by at most form_deviation_mm), so they end on
+  /// the casting's own face and leave no riser stub where the face sits under the nominal (test
   /// RiserPlan.TheLastPassEndsOnTheCastingsOwnFaceNotTheNominal).
   std::function<double(const Vec3& p_part)> form_offset_mm;
   /// How far the tool may really cut from where it is told (part frame, mm^2): the bound along a
@@ -186,7 +186,9 @@ bool for_each_move_sample(const Pose& a, const Pose& b, Fn&& fn) {
 /// Validation rules: "workspace", "tool_axis_cone", "speed", "gouge": at every point and along
 /// the move onto it, sampled every 1 mm (approach descents, lifts, leads, lead-outs, the moves
 /// between passes and between regions), the tool's whole shape keeps at least
-/// settings.min_clearance_mm from the whole template, placed with the point's region's pose.
+/// settings.min_clearance_mm from the whole template, placed with the point's region's pose and
+/// lowered where that region's form offset puts the casting's face under it (by at most its
+/// form_deviation_mm: the passes end on that face; never raised).
 /// The error names the region, the point index in the trajectory, the rule (code
 /// "planning.<rule>") and, for a gouge, the tool's deepest point (part frame) and its depth.
 Status validate(const Trajectory& trajectory, const std::vector<RegionInput>& inputs,
