@@ -42,10 +42,16 @@ using namespace fettle::sim;  // NOLINT(google-build-using-namespace)
 namespace fs = std::filesystem;
 using json = nlohmann::ordered_json;
 
-// Acceptance (issue 5): after one cycle, per region type.
+// Acceptance: after one cycle, per region type, against each casting's own body (the nominal
+// with its form deviation: what a person measures on the casting, and the nominal itself when
+// the form deviation is 0). Against the nominal, a face the form deviation lifts 0.4 mm reads
+// "> 0.3 mm" however well it is ground, and one it lowers reads as a gouge where nothing cut
+// the casting (docs/simulator.md, "Acceptance").
 constexpr double kMaxShareOver05Pct = 0.1;
 constexpr double kMaxShareOver03Pct = 1.0;
-constexpr double kMaxGougeMm = 0.1;
+constexpr double kMaxCutMm = 0.1;
+// Under an error budget (--errors): the deepest cut the issue allows a real cell's error.
+constexpr double kMaxCutUnderErrorsMm = 0.15;
 // Zhu et al. 2022 (section 4.2): 0.14 % to 1.08 % of the points of a region more than 0.5 mm
 // from the template after grinding.
 constexpr const char* kPaperOver05 = "0.14-1.08 %";
@@ -217,15 +223,15 @@ struct RunFacts {
   std::size_t count = 0, failures = 0;
   double minutes = 0.0;
   int width = 0, height = 0;
-  std::vector<double> seed_gouges;
+  std::vector<double> seed_gouges;  ///< the deepest gouge of each casting against the nominal
   double max_gouge = 0.0;
-  std::string worst_where;
+  std::string worst_where;             ///< where the deepest cut into a casting's own body was
   std::vector<double> seed_body_cuts;  ///< the deepest cut into each casting's own body
-  /// castings cut deeper than gouge_depth_mm into their own body, of those read NOK, and read
-  /// NOK for a gouge with no cut that deep
-  std::size_t body_cut = 0, body_cut_nok = 0, nok_without_body_cut = 0;
+  double max_cut_mm = 0.0;             ///< the acceptance's limit on them
+  std::size_t nok_without_cut = 0;     ///< read NOK for a gouge with no cut deeper than gouge_depth_mm
   std::vector<double> plan_ms;  ///< sorted
   std::map<std::string, std::size_t> verdicts;
+  /// castings cut deeper than gouge_depth_mm into their own body; of those, not read NOK
   std::size_t gouged = 0, missed = 0;
   double gouge_depth_mm = 0.0;
   bool pass = false;
@@ -235,8 +241,8 @@ struct RunFacts {
 
 /// The run as a Markdown section: `make accuracy` puts it into docs/results.md
 /// (scripts/update-results), so the latest figures there are the ones a command measured.
-std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>& t1,
-                             const std::map<std::string, double>& type_gouge) {
+std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>& t1b,
+                             const std::map<std::string, double>& type_cut) {
   std::ostringstream m;
   char buf[512];
   const std::string seeds = std::to_string(f.first) + "-" + std::to_string(f.last);
@@ -263,46 +269,42 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
                 f.biased ? ", the executed path offset by (" : "", bias, f.biased ? ") mm from the commanded one" : "",
                 f.pass ? "PASS" : "FAIL");
   m << buf;
-  std::vector<double> g = f.seed_gouges;
-  std::sort(g.begin(), g.end());
-  const std::size_t over = static_cast<std::size_t>(std::count_if(g.begin(), g.end(), [](double d) { return d > kMaxGougeMm; }));
+  std::vector<double> b = f.seed_body_cuts;
+  std::sort(b.begin(), b.end());
+  const auto over = static_cast<std::size_t>(std::count_if(b.begin(), b.end(), [&](double d) { return d > f.max_cut_mm; }));
   m << "| measure | value |\n| --- | --- |\n";
   std::snprintf(buf, sizeof buf, "| castings planned and ground | %zu of %zu |\n", f.count - f.failures, f.count);
   m << buf;
   std::snprintf(buf, sizeof buf,
-                "| deepest gouge per casting (the simulator's account, whole part) | median %.3f mm, worst %.3f mm%s |\n",
-                g.empty() ? 0.0 : g[g.size() / 2], f.max_gouge,
+                "| deepest cut into the casting's own body per casting (its as-cast face, form deviation kept; the "
+                "simulator's account, whole part) | median %.3f mm, worst %.3f mm%s |\n",
+                b.empty() ? 0.0 : b[b.size() / 2], b.empty() ? 0.0 : b.back(),
                 f.worst_where.empty() ? "" : (" (" + f.worst_where + ")").c_str());
   m << buf;
-  std::snprintf(buf, sizeof buf, "| castings gouged deeper than %.2f mm | %zu |\n", kMaxGougeMm, over);
+  std::snprintf(buf, sizeof buf, "| castings cut deeper than %.2f mm | %zu |\n", f.max_cut_mm, over);
   m << buf;
-  std::vector<double> b = f.seed_body_cuts;
-  std::sort(b.begin(), b.end());
-  std::snprintf(buf, sizeof buf,
-                "| deepest cut into the casting's own body per casting (its as-cast face, form deviation kept) | "
-                "median %.3f mm, worst %.3f mm |\n",
-                b.empty() ? 0.0 : b[b.size() / 2], b.empty() ? 0.0 : b.back());
+  std::vector<double> g = f.seed_gouges;
+  std::sort(g.begin(), g.end());
+  std::snprintf(buf, sizeof buf, "| deepest gouge per casting against the nominal | median %.3f mm, worst %.3f mm |\n",
+                g.empty() ? 0.0 : g[g.size() / 2], f.max_gouge);
   m << buf;
   std::string v;
   for (const auto& [k, n] : f.verdicts) v += (v.empty() ? "" : ", ") + std::to_string(n) + " " + k;
   std::snprintf(buf, sizeof buf,
-                "| the cell's verification | %s; %zu of %zu castings gouged deeper than gouge_depth_mm = %.2f mm read NOK |\n",
-                v.c_str(), f.gouged - f.missed, f.gouged, f.gouge_depth_mm);
-  m << buf;
-  std::snprintf(buf, sizeof buf,
-                "| the verification against the as-cast face | %zu of %zu castings cut deeper than %.2f mm into "
-                "their own body read NOK; %zu read NOK for a gouge with no cut that deep |\n",
-                f.body_cut_nok, f.body_cut, f.gouge_depth_mm, f.nok_without_body_cut);
+                "| the cell's verification | %s; %zu of %zu castings cut deeper than gouge_depth_mm = %.2f mm read NOK; "
+                "%zu read NOK with no cut that deep |\n",
+                v.c_str(), f.gouged - f.missed, f.gouged, f.gouge_depth_mm, f.nok_without_cut);
   m << buf;
   std::snprintf(buf, sizeof buf, "| planning per casting | median %.1f ms, worst %.1f ms |\n\n",
                 f.plan_ms.empty() ? 0.0 : f.plan_ms[f.plan_ms.size() / 2], f.plan_ms.empty() ? 0.0 : f.plan_ms.back());
   m << buf;
-  m << "| region type | castings | mean > 0.3 mm | worst casting > 0.3 mm | worst casting > 0.5 mm | deepest gouge |\n"
+  m << "Per region type, against each casting's own body:\n\n"
+       "| region type | castings | mean > 0.3 mm | worst casting > 0.3 mm | worst casting > 0.5 mm | deepest cut |\n"
        "| --- | --- | --- | --- | --- | --- |\n";
-  for (const auto& [type, t] : t1) {
-    const auto it = type_gouge.find(type);
+  for (const auto& [type, t] : t1b) {
+    const auto it = type_cut.find(type);
     std::snprintf(buf, sizeof buf, "| %s | %zu | %.3f %% | %.3f %% | %.3f %% | %.3f mm |\n", type.c_str(), t.seeds,
-                  pct(t.over_0_3, t.roi_points), t.worst_03_pct, t.worst_05_pct, it == type_gouge.end() ? 0.0 : it->second);
+                  pct(t.over_0_3, t.roi_points), t.worst_03_pct, t.worst_05_pct, it == type_cut.end() ? 0.0 : it->second);
     m << buf;
   }
   return m.str();
@@ -325,7 +327,8 @@ void state_accuracies(const fettle::config::PartRecipe& recipe, const CellErrors
                                                                : at.norm());
   }
   safety.calibration_accuracy_mm = b.hand_eye_mm + fettle::deg_to_rad(b.hand_eye_deg) * lever_mm;
-  safety.robot_accuracy_mm = std::hypot(b.path_bias_mm, b.tcp_length_mm);
+  // the bias's direction is drawn at random: along a vertical tool it adds to the TCP error
+  safety.robot_accuracy_mm = b.path_bias_mm + b.tcp_length_mm;
   safety.robot_repeatability_mm = 3.0 * b.path_noise_mm;
   std::printf("the cell states (its file states none): calibration_accuracy_mm %.3f (over a %.0f mm lever), "
               "robot_accuracy_mm %.3f, robot_repeatability_mm %.3f\n",
@@ -410,14 +413,16 @@ int trial(const Args& a) {
   std::map<std::string, TypeStats> t1, t2;  // template comparison, batch consistency
   std::map<std::string, TypeStats> t1b;     // against each casting's own body (form deviation kept)
   std::optional<Casting> reference;         // the first ground casting (batch consistency)
+  // gouged: cut deeper than gouge_depth_mm into its own body; missed: of those, not read NOK
   std::size_t failures = 0, done = 0, gouged_seeds = 0, missed_gouges = 0;
-  std::vector<double> seed_gouges;             // the deepest gouge of each ground casting
+  std::size_t nok_without_cut = 0;             // read NOK for a gouge with no cut that deep
+  std::vector<double> seed_gouges;             // the deepest gouge of each ground casting (nominal)
   std::vector<double> seed_body_cuts;          // the deepest cut into each one's own body
-  std::size_t body_cut = 0, body_cut_nok = 0, nok_without_body_cut = 0;  // as RunFacts
-  std::string worst_where;                     // where the deepest of all was
+  std::string worst_where;                     // where the deepest cut of all was
   std::map<std::string, std::size_t> verdicts;  // the cell's verification per casting
-  std::map<std::string, double> type_gouge;    // the deepest gouge per region type
-  double max_gouge = 0.0;
+  std::map<std::string, double> type_cut;      // the deepest cut per region type
+  double max_gouge = 0.0, max_cut = 0.0;
+  const double max_cut_mm = errors ? kMaxCutUnderErrorsMm : kMaxCutMm;
   std::vector<double> plan_ms;
   std::map<std::string, double> worn_mm;  // --errors: each tool's radius lost to wear so far
   json seeds_json = json::array();
@@ -489,6 +494,20 @@ int trial(const Args& a) {
     auto worn = recipe;
     for (auto& t : worn.tools)
       if (auto w = worn_mm.find(t.name); w != worn_mm.end()) t.diameter_mm = std::max(0.1, t.diameter_mm - 2.0 * w->second);
+    // With an error budget, the same trajectory also on an untouched copy by a robot that does
+    // exactly what it is told with new wheels: its cut into the body is what the perception
+    // side (calibration, registration, the face the vision fitted) leaves; the rest of the
+    // executed cut is the robot's (path bias and noise, TCP length, wear).
+    std::map<std::string, Gouge> commanded_body_cut;
+    if (errors) {
+      Casting as_cast = casting;
+      GrindOptions exact;
+      exact.path_noise_mm = 0.0;
+      if (auto c = grind_by_region(as_cast, out->trajectory, recipe, exact, {}, limits))
+        for (const auto& run : c->runs)
+          if (run.result.deepest_body_cut.depth_mm > commanded_body_cut[run.region].depth_mm)
+            commanded_body_cut[run.region] = run.result.deepest_body_cut;
+    }
     auto runs = grind_by_region(casting, out->trajectory, worn, go, {}, limits);
     if (runs && errors && errors->budget.wheel_wear_mm_per_cm3 > 0.0)
       for (const auto& run : runs->runs)
@@ -568,7 +587,7 @@ int trial(const Args& a) {
       sj["verify_footprint_points"] = ver->footprint_points;
     }
     json regions = json::array();
-    double seed_gouge = 0.0, seed_body_cut = 0.0;
+    double seed_gouge = 0.0, seed_body_cut = 0.0, seed_commanded_cut = 0.0;
     bool seed_ok = true;
     std::string left;  // material the planner left, for the progress line
     for (std::size_t r = 0; r < recipe.regions.size(); ++r) {
@@ -589,16 +608,20 @@ int trial(const Args& a) {
           deepest = &g;
         }
       seed_gouge = std::max(seed_gouge, gmax);
-      type_gouge[type] = std::max(type_gouge[type], gmax);
-      if (gmax > max_gouge && gmax >= seed_gouge && deepest != nullptr) {
+      // into the casting's own body (the as-cast face, its form deviation kept): what a person
+      // sees cut, and what the acceptance counts; the gouge above is against the nominal
+      const Gouge& cut = body_cut_by_region[region.name];
+      type_cut[type] = std::max(type_cut[type], cut.depth_mm);
+      if (cut.depth_mm > max_cut && cut.depth_mm >= seed_body_cut) {
         char w[160];
         std::snprintf(w, sizeof w, "seed %llu, %s at (%.1f, %.1f, %.1f) mm (part frame)",
-                      static_cast<unsigned long long>(seed), region.name.c_str(), deepest->position_mm.x(),
-                      deepest->position_mm.y(), deepest->position_mm.z());
+                      static_cast<unsigned long long>(seed), region.name.c_str(), cut.position_mm.x(),
+                      cut.position_mm.y(), cut.position_mm.z());
         worst_where = w;
       }
-      seed_ok = seed_ok && pct(e1.over_0_5, e1.roi_points) <= kMaxShareOver05Pct &&
-                pct(e1.over_0_3, e1.roi_points) <= kMaxShareOver03Pct;
+      seed_body_cut = std::max(seed_body_cut, cut.depth_mm);
+      seed_ok = seed_ok && pct(e1b.over_0_5, e1b.roi_points) <= kMaxShareOver05Pct &&
+                pct(e1b.over_0_3, e1b.roi_points) <= kMaxShareOver03Pct;
       json rj;
       rj["name"] = region.name;
       rj["type"] = type;
@@ -610,11 +633,27 @@ int trial(const Args& a) {
       rj["batch_consistency"] = region_eval_json(e2);
       rj["gouges"] = gouges_by_region[region.name].size();
       rj["max_gouge_depth_mm"] = gmax;
-      // into the casting's own body (the as-cast face, its form deviation kept): what a person
-      // sees cut; the gouge above is against the nominal
-      const Gouge& cut = body_cut_by_region[region.name];
-      seed_body_cut = std::max(seed_body_cut, cut.depth_mm);
       rj["max_body_cut_mm"] = cut.depth_mm;
+      if (errors) {
+        const Gouge& c = commanded_body_cut[region.name];
+        rj["commanded_body_cut_mm"] = c.depth_mm;
+        if (c.depth_mm > 0.0) {
+          rj["deepest_commanded_body_cut_mm"] = {c.position_mm.x(), c.position_mm.y(), c.position_mm.z()};
+          // Where that cut's face error comes from: the point as the cell placed it (its part
+          // pose, calibration included) against the truth, and the casting's form the vision
+          // fitted there against the true one.
+          for (const auto& rr : out->inspection.regions)
+            if (rr.name == region.name && rr.ok()) {
+              const fettle::Vec3 q =
+                  out->inspection.whole.T_scene_template.inverse() * (casting.T_base_part() * c.position_mm);
+              rj["commanded_cut_cause"] = {{"placement_error_mm", {c.position_mm.x() - q.x(), c.position_mm.y() - q.y(),
+                                                                   c.position_mm.z() - q.z()}},
+                                           {"form_fitted_mm", rr.excess.form.fitted ? rr.excess.form.at(q.x(), q.y()) : 0.0},
+                                           {"form_true_mm", casting.form_deviation_mm(c.position_mm.x(), c.position_mm.y())}};
+            }
+        }
+        seed_commanded_cut = std::max(seed_commanded_cut, c.depth_mm);
+      }
       if (cut.depth_mm > 0.0)
         rj["deepest_body_cut_mm"] = {cut.position_mm.x(), cut.position_mm.y(), cut.position_mm.z()};
       if (deepest != nullptr)  // where: part frame of the casting (its true pose)
@@ -695,22 +734,20 @@ int trial(const Args& a) {
     }
     max_gouge = std::max(max_gouge, seed_gouge);
     seed_gouges.push_back(seed_gouge);
+    max_cut = std::max(max_cut, seed_body_cut);
+    seed_body_cuts.push_back(seed_body_cut);
     ++verdicts[ver ? fettle::process::to_string(ver->verdict) : "error"];
-    // A casting the simulator says is gouged deeper than the verification's gouge_depth_mm must
-    // be NOK in the cell's own verification: an OK there would ship a scrapped casting.
-    const bool gouged = seed_gouge > recipe.verification.gouge_depth_mm;
+    // A casting the simulator says is cut deeper than the verification's gouge_depth_mm into its
+    // own body must be NOK in the cell's own verification: an OK there would ship a scrapped
+    // casting. A NOK for a gouge with no such cut scraps a good one.
+    const bool gouged = seed_body_cut > recipe.verification.gouge_depth_mm;
     const bool missed = gouged && !(ver && ver->verdict == fettle::process::Verdict::nok);
     gouged_seeds += gouged ? 1 : 0;
     missed_gouges += missed ? 1 : 0;
+    nok_without_cut += ver && ver->worst_gouge.has_value() && !gouged ? 1 : 0;
     sj["gouge_missed_by_verification"] = missed;
-    // The verification judges against the casting's own faces: the same account against its body.
-    seed_body_cuts.push_back(seed_body_cut);
-    const bool cut_deep = seed_body_cut > recipe.verification.gouge_depth_mm;
-    const bool nok_for_gouge = ver && ver->worst_gouge.has_value();
-    body_cut += cut_deep ? 1 : 0;
-    body_cut_nok += cut_deep && ver && ver->verdict == fettle::process::Verdict::nok ? 1 : 0;
-    nok_without_body_cut += nok_for_gouge && !cut_deep ? 1 : 0;
     sj["max_body_cut_mm"] = seed_body_cut;
+    if (errors) sj["commanded_body_cut_mm"] = seed_commanded_cut;
     sj["regions"] = regions;
     sj["gouges"] = gouges.size();
     sj["max_gouge_depth_mm"] = seed_gouge;
@@ -724,13 +761,15 @@ int trial(const Args& a) {
     seeds_json.push_back(sj);
     std::string vnote;
     if (ver && ver->worst_gouge) vnote = " (" + ver->worst_gouge->describe() + ")";
-    std::fprintf(stderr, ": %s, verdict %s%s, plan %.1f ms, max gouge %.3f mm, into its own body %.3f mm (%.1f s)%s\n",
+    char commanded_note[48] = "";
+    if (errors) std::snprintf(commanded_note, sizeof commanded_note, " (%.3f mm as commanded)", seed_commanded_cut);
+    std::fprintf(stderr, ": %s, verdict %s%s, plan %.1f ms, deepest cut into its own body %.3f mm%s, against the nominal %.3f mm (%.1f s)%s\n",
                  missed                 ? "GOUGE MISSED"
                  : biased               ? (gouged ? "gouged on purpose, caught" : "not gouged past gouge_depth_mm")
-                 : seed_ok && seed_gouge <= kMaxGougeMm ? "ok"
-                                                        : "OUT OF TOLERANCE",
-                 ver ? fettle::process::to_string(ver->verdict) : "error", vnote.c_str(), pms, seed_gouge,
-                 seed_body_cut, app::seconds_since(ts), left.c_str());
+                 : seed_ok && seed_body_cut <= max_cut_mm ? "ok"
+                                                          : "OUT OF TOLERANCE",
+                 ver ? fettle::process::to_string(ver->verdict) : "error", vnote.c_str(), pms, seed_body_cut,
+                 commanded_note, seed_gouge, app::seconds_since(ts), left.c_str());
   }
 
   // Summary: the paper's tables.
@@ -739,20 +778,23 @@ int trial(const Args& a) {
   report += table("Table 1b - casting comparison (against each casting's own body: the nominal with its form "
                   "deviation, no flash)", t1b, false);
   // With the path offset on purpose the castings are gouged by design: the acceptance is then
-  // that the verification catches every gouge; without it, also that none is deeper than
-  // kMaxGougeMm and every region type meets Table 1's shares.
-  bool pass = failures == 0 && missed_gouges == 0 && (biased || max_gouge <= kMaxGougeMm);
+  // that the verification catches every gouge; without it, also that no cut into a casting is
+  // deeper than max_cut_mm and every region type meets Table 1b's shares.
+  bool pass = failures == 0 && missed_gouges == 0 && (biased || max_cut <= max_cut_mm);
   if (!biased)
-    for (const auto& [type, t] : t1) pass = pass && t.worst_05_pct <= kMaxShareOver05Pct && t.worst_03_pct <= kMaxShareOver03Pct;
+    for (const auto& [type, t] : t1b) pass = pass && t.worst_05_pct <= kMaxShareOver05Pct && t.worst_03_pct <= kMaxShareOver03Pct;
   std::sort(plan_ms.begin(), plan_ms.end());
   char line[512];
   std::snprintf(line, sizeof line,
-                "seeds %llu-%llu%s: %zu failed; max gouge %.3f mm (whole part); planning median %.1f ms, max %.1f ms\n"
-                "verification: %zu of %zu castings gouged deeper than gouge_depth_mm = %.2f mm read NOK (%zu missed)\n",
+                "seeds %llu-%llu%s: %zu failed; deepest cut into a casting's own body %.3f mm, against the nominal %.3f mm "
+                "(whole part); planning median %.1f ms, max %.1f ms\n"
+                "verification: %zu of %zu castings cut deeper than gouge_depth_mm = %.2f mm read NOK (%zu missed); "
+                "%zu read NOK with no cut that deep\n",
                 static_cast<unsigned long long>(first), static_cast<unsigned long long>(last),
-                drawn ? " (drawn at run time)" : "", failures, max_gouge,
+                drawn ? " (drawn at run time)" : "", failures, max_cut, max_gouge,
                 plan_ms.empty() ? 0.0 : plan_ms[plan_ms.size() / 2], plan_ms.empty() ? 0.0 : plan_ms.back(),
-                gouged_seeds - missed_gouges, gouged_seeds, recipe.verification.gouge_depth_mm, missed_gouges);
+                gouged_seeds - missed_gouges, gouged_seeds, recipe.verification.gouge_depth_mm, missed_gouges,
+                nok_without_cut);
   report += line;
   if (learning) {
     std::snprintf(line, sizeof line, "the cell's learned bias: %s%s\n", cell_bias.describe().c_str(),
@@ -776,9 +818,10 @@ int trial(const Args& a) {
                   pass ? "PASS" : "FAIL");
   else
     std::snprintf(line, sizeof line,
-                  "acceptance (every region type: worst seed <= %.1f %% > 0.5 mm and <= %.1f %% > 0.3 mm; gouges <= %.2f mm "
-                  "anywhere; no gouge missed by the verification): %s\n",
-                  kMaxShareOver05Pct, kMaxShareOver03Pct, kMaxGougeMm, pass ? "PASS" : "FAIL");
+                  "acceptance (every region type: worst seed <= %.1f %% > 0.5 mm and <= %.1f %% > 0.3 mm against its own "
+                  "body; no cut into it deeper than %.2f mm anywhere; none deeper than gouge_depth_mm missed by the "
+                  "verification): %s\n",
+                  kMaxShareOver05Pct, kMaxShareOver03Pct, max_cut_mm, pass ? "PASS" : "FAIL");
   report += line;
   std::printf("%s", report.c_str());
   json summary;
@@ -794,10 +837,9 @@ int trial(const Args& a) {
   summary["gouges_missed_by_verification"] = missed_gouges;
   summary["failures"] = failures;
   summary["max_gouge_depth_mm"] = max_gouge;
-  summary["max_body_cut_mm"] = seed_body_cuts.empty() ? 0.0 : *std::max_element(seed_body_cuts.begin(), seed_body_cuts.end());
-  summary["castings_cut_deeper_than_gouge_depth_into_their_body"] = body_cut;
-  summary["of_those_read_nok"] = body_cut_nok;
-  summary["nok_for_a_gouge_not_that_deep_in_the_body"] = nok_without_body_cut;
+  summary["max_body_cut_mm"] = max_cut;
+  summary["max_body_cut_allowed_mm"] = max_cut_mm;
+  summary["nok_for_a_gouge_not_that_deep_in_the_body"] = nok_without_cut;
   summary["acceptance"] = pass;
   summary["template_comparison"] = type_stats_json(t1);
   summary["casting_comparison"] = type_stats_json(t1b);
@@ -808,11 +850,11 @@ int trial(const Args& a) {
                                   summary_markdown({first, last, a.seeds, drawn, biased, path_bias, count, failures,
                                                     app::seconds_since(t0) / 60.0, scanner.config().intrinsics.width,
                                                     scanner.config().intrinsics.height, seed_gouges, max_gouge,
-                                                    worst_where, seed_body_cuts, body_cut, body_cut_nok,
-                                                    nok_without_body_cut, plan_ms, verdicts, gouged_seeds, missed_gouges,
+                                                    worst_where, seed_body_cuts, max_cut_mm, nok_without_cut, plan_ms,
+                                                    verdicts, gouged_seeds, missed_gouges,
                                                     recipe.verification.gouge_depth_mm, pass,
                                                     a.errors.file.string(), a.errors.cell_seed},
-                                                   t1, type_gouge));
+                                                   t1b, type_cut));
   return pass ? fettle::exit_code::ok : fettle::exit_code::failure;
 }
 

@@ -108,8 +108,9 @@ TEST(Trial, OneSeedWritesItsEvaluationPerRegionWithTheDeepestGouge) {
 }
 
 // Issue 5's acceptance on the two castings CI can afford: every region type within its shares
-// of the ROI points and no gouge deeper than 0.1 mm. `make accuracy` asks the same of 50
-// castings drawn at run time (latest figures in docs/results.md).
+// of the ROI points and no cut deeper than 0.1 mm, both against each casting's own body (the
+// nominal with the recipe's form deviation). `make accuracy` asks the same of 50 castings drawn
+// at run time (latest figures in docs/results.md).
 TEST(Trial, TwoSeedsMeetTheAcceptanceThresholds) {
   const auto t = run_trial("1-2");
   ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
@@ -117,8 +118,9 @@ TEST(Trial, TwoSeedsMeetTheAcceptanceThresholds) {
   const std::string& text = t.log;
   const fs::path& out = t.out;
   EXPECT_EQ(summary.at("failures").get<int>(), 0) << text;
-  EXPECT_LE(summary.at("max_gouge_depth_mm").get<double>(), 0.1) << text;
-  const auto& types = summary.at("template_comparison");
+  EXPECT_LE(summary.at("max_body_cut_mm").get<double>(), 0.1) << text;
+  EXPECT_DOUBLE_EQ(summary.at("max_body_cut_allowed_mm").get<double>(), 0.1) << text;
+  const auto& types = summary.at("casting_comparison");
   for (const char* type : {"ring_flash", "riser", "circle_flash", "straight_flash"}) {
     ASSERT_TRUE(types.contains(type)) << type << "\n" << text;
     const auto& tt = types.at(type);
@@ -145,7 +147,7 @@ TEST(Trial, APathBiasGougeIsNokInTheCellsVerificationWithItsPlace) {
   const auto t = run_trial("3-3", "--path-bias-mm 0 0 -0.4 --width 1032");
   ASSERT_FALSE(t.summary.is_null()) << "no summary.json; output:\n" << t.log;
   EXPECT_EQ(t.summary.at("failures").get<int>(), 0) << t.log;
-  EXPECT_GT(t.summary.at("max_gouge_depth_mm").get<double>(), 0.3) << t.log;  // gouged on purpose
+  EXPECT_GT(t.summary.at("max_body_cut_mm").get<double>(), 0.3) << t.log;  // gouged on purpose
   EXPECT_EQ(t.summary.at("gouged_castings").get<int>(), 1) << t.log;
   EXPECT_EQ(t.summary.at("gouges_missed_by_verification").get<int>(), 0) << t.log;
   std::ifstream in(t.out / "seed-3" / "evaluation.json");
@@ -191,10 +193,10 @@ TEST(Trial, TheCellLearnsAPathBiasFromItsVerificationsAndTheGougesShrink) {
   const auto& last = ground.back().at("compensation").at("bias_after_mm");
   EXPECT_LT(std::abs(last.at(0).get<double>()) + std::abs(last.at(1).get<double>()), 0.01) << last.dump();
   // the gouges shrink: the first casting's is the deepest, the later ones are within the acceptance
-  const double g0 = ground.front().at("max_gouge_depth_mm").get<double>();
+  const double g0 = ground.front().at("max_body_cut_mm").get<double>();
   EXPECT_GT(g0, 0.15) << "0.2 mm down gouges the first casting\n" << t.log;
   for (std::size_t k = 2; k < ground.size(); ++k)
-    EXPECT_LT(ground[k].at("max_gouge_depth_mm").get<double>(), 0.1) << "casting " << k + 1 << "\n" << t.log;
+    EXPECT_LT(ground[k].at("max_body_cut_mm").get<double>(), 0.1) << "casting " << k + 1 << "\n" << t.log;
   if (!HasFailure()) clean(t);
 }
 
