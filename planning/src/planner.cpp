@@ -843,11 +843,13 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
 
 namespace {
 
-/// The casting's own face against the template at p (RegionInput::form_offset_mm): under it
-/// by no more than the stated form deviation, an offset lower than that not being the
-/// casting's form; 0 without an offset.
-double face_offset(const RegionInput& in, const Vec3& p) {
-  return in.form_offset_mm ? std::max(-std::max(0.0, in.form_deviation_mm), in.form_offset_mm(p)) : 0.0;
+/// The casting's own face against the template (RegionInput::form_offset_mm, which the caller
+/// checks is set): under it by no more than the stated form deviation, an offset lower than
+/// that not being the casting's form.
+std::function<double(const Vec3&)> face_offset(const RegionInput& in) {
+  return [offset = in.form_offset_mm, lowest = -std::max(0.0, in.form_deviation_mm)](const Vec3& p) {
+    return std::max(lowest, offset(p));
+  };
 }
 
 /// The input with the template's surface moved along z by move(p).
@@ -867,14 +869,14 @@ RegionInput moved_along_z(const RegionInput& in, std::function<double(const Vec3
 /// over or under the nominal.
 RegionInput on_the_castings_face(const RegionInput& in) {
   if (!in.form_offset_mm) return in;
-  return moved_along_z(in, [in](const Vec3& p) { return face_offset(in, p); });
+  return moved_along_z(in, face_offset(in));
 }
 
 /// The surface validate() keeps every pose's clearance from: the template, lowered where the
 /// casting's own face is under it (the passes end there), never raised.
 RegionInput validated_against(const RegionInput& in) {
   if (!in.form_offset_mm) return in;
-  return moved_along_z(in, [in](const Vec3& p) { return std::min(0.0, face_offset(in, p)); });
+  return moved_along_z(in, [face = face_offset(in)](const Vec3& p) { return std::min(0.0, face(p)); });
 }
 
 /// The input whose template keeps the placement bound where it exceeds the region's allowance
