@@ -137,6 +137,14 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
   if (!ins) return ins.error();
   out.inspection = std::move(ins.value());
   out.T_base_part = out.inspection.whole.T_scene_template;
+  if (options.before != nullptr && options.before->regions.size() == recipe.regions.size())
+    for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
+      auto& rr = out.inspection.regions[i];
+      const auto& face = options.before->regions[i].excess.form;
+      if (!rr.ok() || !face.fitted || !selected(options, recipe.regions[i].name)) continue;
+      rr.excess = vision::measure_region_excess(recipe, loaded.templ.regions()[i], out.inspection.scene_part,
+                                                out.T_base_part.inverse() * rr.registration.T_scene_template, &face);
+    }
 
   // Regions: a region the vision stage could not locate cannot be ground safely.
   std::vector<planning::RegionInput> inputs;

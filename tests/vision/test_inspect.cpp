@@ -367,6 +367,39 @@ TEST(Excess, TheLocalFaceFollowsAFormThePlaneCannot) {
         << "material off the bump at " << p.x() << ", " << p.y() << ", " << p.z();
 }
 
+// A riser ground down to a 0.3 mm stub (within the casting's 0.5 mm form deviation): fitted on
+// the ground casting, the stub is most of the face around it and reads as the face, so a
+// re-grind would find nothing; measured from the face the first scan saw, the stub is material.
+TEST(Excess, AReGrindMeasuresFromTheFaceTheFirstScanSaw) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto t = PreparedCloud::prepare(test::flat_square(40.0f), ps);
+  const auto casting = [](float riser_mm) {
+    Cloud scene;
+    std::mt19937_64 rng(9);
+    std::normal_distribution<float> noise(0.0f, 0.02f);
+    for (float x = -40; x <= 40; x += 0.5f)
+      for (float y = -40; y <= 40; y += 0.5f)
+        scene.points.emplace_back(x, y, 0.1f + (x * x + y * y <= 64.0f ? riser_mm : 0.0f) + noise(rng));
+    return scene;
+  };
+  ExcessSettings own;
+  own.form_deviation_mm = 0.5;
+  const auto first = measure_excess(t, casting(3.0f), own);
+  ASSERT_TRUE(first.form.fitted);
+  const auto ground = casting(0.3f);
+  std::size_t stub_points = 0;
+  for (const auto& p : ground.points) stub_points += p.x() * p.x() + p.y() * p.y() <= 64.0f ? 1 : 0;
+  const auto refitted = measure_excess(t, ground, own);
+  EXPECT_LT(static_cast<double>(refitted.points.size()), 0.5 * static_cast<double>(stub_points))
+      << "fitted on the ground casting, the stub is taken for the face";
+  ExcessSettings from_first = own;
+  from_first.face = &first.form;
+  const auto stub = measure_excess(t, ground, from_first);
+  EXPECT_NEAR(static_cast<double>(stub.points.size()), static_cast<double>(stub_points), 0.1 * static_cast<double>(stub_points));
+  EXPECT_NEAR(stub.max_height_mm, 0.4, 0.1);
+}
+
 // A scan voxelized in its own frame has the template's pitch but not its grid, and the voxels
 // on the rim average the top with the floor around it. Counting the template patches that own
 // a material point measures this disc 3 % large (the simulator's riser scans 2-10 % small);

@@ -126,8 +126,6 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
     wide.push_back({scene.points[i].x(), scene.points[i].y(), height[i]});
     if (std::abs(height[i]) <= form_deviation_mm) face.push_back(wide.back());
   }
-  // the local fit's samples: within the form deviation of the plane (which carries the tilt
-  // a best fit to a deformed body takes), not of the template
   if (face.size() < 10) return f;
   const auto median_of = [](std::vector<double> v) {
     const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
@@ -177,6 +175,8 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
   for (std::size_t k = 0; k < face.size(); ++k)
     if (keep[k]) ss += res[k] * res[k], ++f.points;
   f.rms_mm = f.points > 0 ? std::sqrt(ss / static_cast<double>(f.points)) : 0.0;
+  // the local fit's samples: within the form deviation of the plane (which carries the tilt
+  // a best fit to a deformed body takes), not of the template
   std::erase_if(wide, [&](const FaceSample& w) { return std::abs(w.h - f.plane_at(w.x, w.y)) > form_deviation_mm; });
   fit_local_offsets(wide, f);
   return f;
@@ -229,7 +229,9 @@ ExcessMaterial measure_excess(const PreparedCloud& templ, const Cloud& scene_in_
   //     to F over the nominal, and measured against the nominal it would be "material" (0.5 mm
   //     of it over a whole face beside a riser). The offsets of the points on the template's
   //     upward faces within F of it give a plane of offsets; material stands out of that.
-  if (settings.form_deviation_mm > 0.0) out.form = fit_form_offset(T, scene_in_template, owner, height, settings.form_deviation_mm);
+  if (settings.form_deviation_mm > 0.0)
+    out.form = settings.face != nullptr ? *settings.face
+                                        : fit_form_offset(T, scene_in_template, owner, height, settings.form_deviation_mm);
   const auto candidate = [&](std::size_t i) {
     const auto& p = scene_in_template.points[i];
     return owner[i] >= 0 && height[i] - out.form.at(p.x(), p.y()) > settings.threshold_mm &&

@@ -464,15 +464,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
       if (r->fitness < vs.min_fitness)
         rr.error = Error{"vision.low_fitness", "region '" + rr.name + "': fitness " + std::to_string(r->fitness) +
                                                    " below min_fitness " + std::to_string(vs.min_fitness), ErrorKind::wrong_part};
-      ExcessSettings es;
-      es.threshold_mm = rt.region.excess_threshold_mm;
-      es.min_cluster_points = vs.excess_min_cluster_points;
-      es.form_deviation_mm = vs.form_deviation_mm;
-      // the material inside the ROI, the casting's face from its context too (a tool reaches
-      // beyond the ROI by its radius)
-      es.material_min_mm = box_min(rt.region, 0.0).cast<float>();
-      es.material_max_mm = box_max(rt.region, 0.0).cast<float>();
-      rr.excess = measure_excess(rt.cloud, transformed(local, r->T_scene_template.inverse()), es);
+      rr.excess = measure_region_excess(recipe, rt, transformed(local, T_part_scene), T_part_scene * r->T_scene_template);
     }
     out.regions.push_back(std::move(rr));
   }
@@ -494,6 +486,22 @@ std::optional<Error> check_extent(const Bounds& b) {
 }
 
 }  // namespace
+
+ExcessMaterial measure_region_excess(const config::PartRecipe& recipe, const RegionTemplate& rt, const Cloud& scene_part,
+                                     const Transform& T_part_region, const FormOffset* face) {
+  ExcessSettings es;
+  es.threshold_mm = rt.region.excess_threshold_mm;
+  es.min_cluster_points = recipe.vision.excess_min_cluster_points;
+  es.form_deviation_mm = recipe.vision.form_deviation_mm;
+  es.face = face;
+  // the material inside the ROI, the casting's face from its context too (a tool reaches
+  // beyond the ROI by its radius)
+  es.material_min_mm = box_min(rt.region, 0.0).cast<float>();
+  es.material_max_mm = box_max(rt.region, 0.0).cast<float>();
+  const Transform T_region_part = T_part_region.inverse();
+  const Cloud local = crop_box(scene_part, T_region_part, box_min(rt.region, kRegionContextMm), box_max(rt.region, kRegionContextMm));
+  return measure_excess(rt.cloud, transformed(local, T_region_part), es);
+}
 
 Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& scan,
                            const Transform& T_fixture_scan) {

@@ -429,6 +429,7 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     po.regions = v->regrind_regions();
     po.cell_bias_mm = c.cell_bias_mm;
     po.placement_bound_mm2 = c.placement.bound_mm2;
+    po.before = c.processed ? &c.processed->inspection : nullptr;  // the casting's faces as first seen
     log->info("cycle {}: re-grind of {} region(s): {}", c.summary.id, po.regions.size(), fmt::join(po.regions, ", "));
     c.first_verification = std::move(v);
     std::string not_planned;

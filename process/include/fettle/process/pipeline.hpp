@@ -148,6 +148,10 @@ struct ProcessOptions {
   /// unit n is sqrt(n^T M n)): every region keeps at least this from the template along the
   /// surface's normal where it exceeds the region's allowance (process::placement_uncertainty).
   Eigen::Matrix3d placement_bound_mm2 = Eigen::Matrix3d::Zero();
+  /// A re-grind: the cycle's first inspection. Each region's material is measured from the
+  /// casting's face as that scan saw it: on the ground casting, a stub the passes left within
+  /// the form deviation fits as the face, and the re-grind would find nothing to grind.
+  const vision::Inspection* before = nullptr;
 };
 
 struct ProcessOutput {

@@ -23,6 +23,10 @@ struct ExcessSettings {
   /// reaches beyond the region's ROI (a ball's edge at a pass's end).
   Eigen::Vector3f material_min_mm = Eigen::Vector3f::Constant(-std::numeric_limits<float>::infinity());
   Eigen::Vector3f material_max_mm = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity());
+  /// The casting's face to measure the material from instead of fitting one to this scene
+  /// (with form_deviation_mm > 0). A re-grind measures from the cycle's first scan: on a ground
+  /// casting, the stub a pass left within the form deviation fits as the face.
+  const struct FormOffset* face = nullptr;
 };
 
 /// The casting's own surface against the template in one region (part frame, mm along the

@@ -65,6 +65,14 @@ struct Inspection {
   std::vector<std::pair<std::string, double>> stage_seconds;  ///< time per stage (profiling)
 };
 
+/// A region's excess material in a scene in the part frame, the region's template placed at
+/// T_part_region: the scene within the region's ROI and 10 mm around it (the casting's face
+/// there too), material inside the ROI. `face`: the casting's face to measure from (a
+/// re-grind's: the cycle's first scan's); null: fitted on this scene. inspect() measures every
+/// region with it.
+ExcessMaterial measure_region_excess(const config::PartRecipe& recipe, const RegionTemplate& rt, const Cloud& scene_part,
+                                     const Transform& T_part_region, const FormOffset* face = nullptr);
+
 /// The recipe's nominal placement of the part in the fixture frame.
 Transform nominal_T_fixture_part(const config::PartRecipe& recipe);
 
