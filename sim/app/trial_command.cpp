@@ -233,6 +233,7 @@ struct RunFacts {
   std::map<std::string, std::size_t> verdicts;
   /// castings cut deeper than gouge_depth_mm into their own body; of those, not read NOK
   std::size_t gouged = 0, missed = 0;
+  std::size_t first_pass_ok = 0, reground = 0;  ///< OK on the first verification; re-ground once
   double gouge_depth_mm = 0.0;
   bool pass = false;
   std::string errors_file;  ///< --errors, empty: the simulator's own world
@@ -294,6 +295,9 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
                 "| the cell's verification | %s; %zu of %zu castings cut deeper than gouge_depth_mm = %.2f mm read NOK; "
                 "%zu read NOK with no cut that deep |\n",
                 v.c_str(), f.gouged - f.missed, f.gouged, f.gouge_depth_mm, f.nok_without_cut);
+  m << buf;
+  std::snprintf(buf, sizeof buf, "| first-pass yield (OK on the first verification) | %zu of %zu; %zu re-ground once |\n",
+                f.first_pass_ok, f.count, f.reground);
   m << buf;
   std::snprintf(buf, sizeof buf, "| planning per casting | median %.1f ms, worst %.1f ms |\n\n",
                 f.plan_ms.empty() ? 0.0 : f.plan_ms[f.plan_ms.size() / 2], f.plan_ms.empty() ? 0.0 : f.plan_ms.back());
@@ -416,6 +420,7 @@ int trial(const Args& a) {
   // gouged: cut deeper than gouge_depth_mm into its own body; missed: of those, not read NOK
   std::size_t failures = 0, done = 0, gouged_seeds = 0, missed_gouges = 0;
   std::size_t nok_without_cut = 0;             // read NOK for a gouge with no cut that deep
+  std::size_t first_pass_ok = 0, reground = 0;  // OK on the first verification; re-ground once
   std::vector<double> seed_gouges;             // the deepest gouge of each ground casting (nominal)
   std::vector<double> seed_body_cuts;          // the deepest cut into each one's own body
   std::string worst_where;                     // where the deepest cut of all was
@@ -508,23 +513,26 @@ int trial(const Args& a) {
           if (run.result.deepest_body_cut.depth_mm > commanded_body_cut[run.region].depth_mm)
             commanded_body_cut[run.region] = run.result.deepest_body_cut;
     }
-    auto runs = grind_by_region(casting, out->trajectory, worn, go, {}, limits);
-    if (runs && errors && errors->budget.wheel_wear_mm_per_cm3 > 0.0)
-      for (const auto& run : runs->runs)
-        worn_mm[run.tool] += errors->budget.wheel_wear_mm_per_cm3 * run.result.removed_mm3() / 1000.0;
-    if (!runs) {
-      std::fprintf(stderr, ": FAILED: %s\n", runs.error().message.c_str());
-      sj["error"] = runs.error().message;
-      grind_failed = true;
-    } else {
-      for (const auto& run : runs->runs)
+    // Grinds a trajectory on the casting with the worn wheels and keeps its gouges and cuts.
+    const auto grind_on_casting = [&](const fettle::Trajectory& trajectory, const GrindOptions& options) {
+      auto runs = grind_by_region(casting, trajectory, worn, options, {}, limits);
+      if (!runs) return fettle::Status(runs.error());
+      for (const auto& run : runs->runs) {
+        if (errors && errors->budget.wheel_wear_mm_per_cm3 > 0.0)
+          worn_mm[run.tool] += errors->budget.wheel_wear_mm_per_cm3 * run.result.removed_mm3() / 1000.0;
         for (const auto& gg : run.result.gouges) {
           gouges_by_region[run.region].push_back(gg);
           gouges.push_back(gg);
         }
-      for (const auto& run : runs->runs)
         if (run.result.deepest_body_cut.depth_mm > body_cut_by_region[run.region].depth_mm)
           body_cut_by_region[run.region] = run.result.deepest_body_cut;
+      }
+      return fettle::Status{};
+    };
+    if (auto st = grind_on_casting(out->trajectory, go); !st) {
+      std::fprintf(stderr, ": FAILED: %s\n", st.error().message.c_str());
+      sj["error"] = st.error().message;
+      grind_failed = true;
     }
     if (grind_failed) {
       (void)fettle::write_file_atomic(dir / "evaluation.json", sj.dump(2) + "\n");
@@ -534,11 +542,13 @@ int trial(const Args& a) {
     }
 
     std::fprintf(stderr, ", re-scan");
-    const auto rescan = scan(casting, seed, 100);
+    auto rescan = scan(casting, seed, 100);
     std::fprintf(stderr, ", verify");
     fettle::process::VerifyOptions vo;
     vo.before = &out->inspection;  // the casting's own faces, as the cell judges them
-    const auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory}, vo);
+    auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory}, vo);
+    const std::string first_verdict = ver ? fettle::process::to_string(ver->verdict) : "error";
+    sj["first_verdict"] = first_verdict;
     if (ver && learning) {
       json cj;
       cj["bias_before_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};
@@ -559,6 +569,41 @@ int trial(const Args& a) {
       if (injected.norm() > 0.0) bias_error_mm.push_back((injected - cell_bias.bias_mm).norm());
       sj["compensation"] = cj;
       std::fprintf(stderr, ", learned bias %s", cell_bias.describe().c_str());
+    }
+    // One re-grind, as fettled does (daemon/src/runtime/cycle_runner.cpp): the regions the
+    // verification read REGRIND, planned on the re-scan from the casting's faces as first seen,
+    // with what the cell has learned since; then a second re-scan and verification, which the
+    // evaluation below judges.
+    if (ver && ver->verdict == fettle::process::Verdict::regrind) {
+      fettle::process::ProcessOptions ro;
+      ro.regions = ver->regrind_regions();
+      ro.cell_bias_mm = learning ? cell_bias.bias_mm : fettle::Vec3::Zero();
+      ro.placement_bound_mm2 = fettle::process::placement_uncertainty(
+          cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation).bound_mm2;
+      ro.before = &out->inspection;
+      std::fprintf(stderr, ", re-grind");
+      json rg;
+      rg["regions"] = ro.regions;
+      auto again = fettle::process::process(loaded, cell, rescan.views, ro);
+      if (!again) {
+        rg["error"] = again.error().message;
+        std::fprintf(stderr, " (not planned: %s)", again.error().message.c_str());
+      } else if (again->trajectory.points.empty()) {
+        rg["skipped"] = "nothing above the excess threshold";
+        std::fprintf(stderr, " (nothing to grind)");
+      } else {
+        GrindOptions go2 = go;
+        go2.noise_seed = seed ^ 0x5EC0D;  // the second run's noise is its own
+        if (auto st = grind_on_casting(again->trajectory, go2); !st) {
+          rg["error"] = st.error().message;
+        } else {
+          rg["trajectory_points"] = again->trajectory.points.size();
+          std::fprintf(stderr, ", re-scan, verify");
+          rescan = scan(casting, seed, 200);
+          ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory, again->trajectory}, vo);
+        }
+      }
+      sj["regrind"] = rg;
     }
     std::fprintf(stderr, ", evaluate");
     const auto pts = eval_points(recipe, rescan.captures);
@@ -737,6 +782,8 @@ int trial(const Args& a) {
     max_cut = std::max(max_cut, seed_body_cut);
     seed_body_cuts.push_back(seed_body_cut);
     ++verdicts[ver ? fettle::process::to_string(ver->verdict) : "error"];
+    first_pass_ok += first_verdict == "OK" ? 1 : 0;
+    reground += sj.contains("regrind") ? 1 : 0;
     // A casting the simulator says is cut deeper than the verification's gouge_depth_mm into its
     // own body must be NOK in the cell's own verification: an OK there would ship a scrapped
     // casting. A NOK for a gouge with no such cut scraps a good one.
@@ -789,12 +836,12 @@ int trial(const Args& a) {
                 "seeds %llu-%llu%s: %zu failed; deepest cut into a casting's own body %.3f mm, against the nominal %.3f mm "
                 "(whole part); planning median %.1f ms, max %.1f ms\n"
                 "verification: %zu of %zu castings cut deeper than gouge_depth_mm = %.2f mm read NOK (%zu missed); "
-                "%zu read NOK with no cut that deep\n",
+                "%zu read NOK with no cut that deep; first-pass yield %zu of %zu (%zu re-ground once)\n",
                 static_cast<unsigned long long>(first), static_cast<unsigned long long>(last),
                 drawn ? " (drawn at run time)" : "", failures, max_cut, max_gouge,
                 plan_ms.empty() ? 0.0 : plan_ms[plan_ms.size() / 2], plan_ms.empty() ? 0.0 : plan_ms.back(),
                 gouged_seeds - missed_gouges, gouged_seeds, recipe.verification.gouge_depth_mm, missed_gouges,
-                nok_without_cut);
+                nok_without_cut, first_pass_ok, count, reground);
   report += line;
   if (learning) {
     std::snprintf(line, sizeof line, "the cell's learned bias: %s%s\n", cell_bias.describe().c_str(),
@@ -840,6 +887,8 @@ int trial(const Args& a) {
   summary["max_body_cut_mm"] = max_cut;
   summary["max_body_cut_allowed_mm"] = max_cut_mm;
   summary["nok_for_a_gouge_not_that_deep_in_the_body"] = nok_without_cut;
+  summary["first_pass_ok"] = first_pass_ok;
+  summary["reground"] = reground;
   summary["acceptance"] = pass;
   summary["template_comparison"] = type_stats_json(t1);
   summary["casting_comparison"] = type_stats_json(t1b);
@@ -851,7 +900,7 @@ int trial(const Args& a) {
                                                     app::seconds_since(t0) / 60.0, scanner.config().intrinsics.width,
                                                     scanner.config().intrinsics.height, seed_gouges, max_gouge,
                                                     worst_where, seed_body_cuts, max_cut_mm, nok_without_cut, plan_ms,
-                                                    verdicts, gouged_seeds, missed_gouges,
+                                                    verdicts, gouged_seeds, missed_gouges, first_pass_ok, reground,
                                                     recipe.verification.gouge_depth_mm, pass,
                                                     a.errors.file.string(), a.errors.cell_seed},
                                                    t1b, type_cut));
