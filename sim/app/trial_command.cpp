@@ -503,15 +503,18 @@ int trial(const Args& a) {
     // exactly what it is told with new wheels: its cut into the body is what the perception
     // side (calibration, registration, the face the vision fitted) leaves; the rest of the
     // executed cut is the robot's (path bias and noise, TCP length, wear).
+    // The deepest cut of a run into the casting's own body, kept per region.
+    const auto keep_deepest_cut = [](std::map<std::string, Gouge>& by_region, const RegionGrind& run) {
+      if (run.result.deepest_body_cut.depth_mm > by_region[run.region].depth_mm)
+        by_region[run.region] = run.result.deepest_body_cut;
+    };
     std::map<std::string, Gouge> commanded_body_cut;
     if (errors) {
       Casting as_cast = casting;
       GrindOptions exact;
       exact.path_noise_mm = 0.0;
       if (auto c = grind_by_region(as_cast, out->trajectory, recipe, exact, {}, limits))
-        for (const auto& run : c->runs)
-          if (run.result.deepest_body_cut.depth_mm > commanded_body_cut[run.region].depth_mm)
-            commanded_body_cut[run.region] = run.result.deepest_body_cut;
+        for (const auto& run : c->runs) keep_deepest_cut(commanded_body_cut, run);
     }
     // Grinds a trajectory on the casting with the worn wheels and keeps its gouges and cuts.
     const auto grind_on_casting = [&](const fettle::Trajectory& trajectory, const GrindOptions& options) {
@@ -524,8 +527,7 @@ int trial(const Args& a) {
           gouges_by_region[run.region].push_back(gg);
           gouges.push_back(gg);
         }
-        if (run.result.deepest_body_cut.depth_mm > body_cut_by_region[run.region].depth_mm)
-          body_cut_by_region[run.region] = run.result.deepest_body_cut;
+        keep_deepest_cut(body_cut_by_region, run);
       }
       return fettle::Status{};
     };
