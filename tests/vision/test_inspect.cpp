@@ -367,6 +367,43 @@ TEST(Excess, TheLocalFaceFollowsAFormThePlaneCannot) {
         << "material off the bump at " << p.x() << ", " << p.y() << ", " << p.z();
 }
 
+// A riser whose top is tilted so steeply (0.2 mm/mm) that it meets the face: on its low side
+// the material rises out of the face on a ramp, the first millimetres of which lie within the
+// casting's form deviation and look like face. A plane through a node's neighbourhood there
+// tilts up the ramp and reads the face 0.2-0.5 mm high, and the riser's last pass leaves that
+// much; left out as the foot of material, the face stays where it is.
+TEST(Excess, ARiserMeetingTheFaceOnARampLeavesTheFaceWhereItIs) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto t = PreparedCloud::prepare(test::flat_square(40.0f), ps);
+  std::mt19937_64 rng(11);
+  std::normal_distribution<float> noise(0.0f, 0.02f);
+  constexpr float face = 0.1f;
+  const auto riser = [](float x, float y) {  // material over the face, 0 where there is none
+    return x * x + y * y <= 15.0f * 15.0f ? std::max(0.0f, 1.0f + 0.2f * x) : 0.0f;
+  };
+  Cloud scene;
+  for (float x = -40; x <= 40; x += 0.5f)
+    for (float y = -40; y <= 40; y += 0.5f) scene.points.emplace_back(x, y, face + riser(x, y) + noise(rng));
+  ExcessSettings own;
+  own.form_deviation_mm = 0.5;
+  const auto ex = measure_excess(t, scene, own);
+  ASSERT_TRUE(ex.form.fitted);
+  double worst = 0.0;
+  float wx = 0, wy = 0;
+  for (float x = -38; x <= 38; x += 0.5f)
+    for (float y = -38; y <= 38; y += 0.5f)
+      if (const double e = std::abs(ex.form.at(x, y) - face); e > worst) worst = e, wx = x, wy = y;
+  EXPECT_LT(worst, 0.06) << "the face at " << wx << ", " << wy << " (the ramp's foot is at x = -5)";
+  std::size_t tall = 0, found = 0;
+  for (const auto& p : scene.points) tall += riser(p.x(), p.y()) > 0.3f ? 1 : 0;
+  for (const auto& p : ex.points) {
+    found += riser(p.x(), p.y()) > 0.3f ? 1 : 0;
+    EXPECT_GT(riser(p.x(), p.y()), 0.1f) << "material on the face at " << p.x() << ", " << p.y();
+  }
+  EXPECT_GE(static_cast<double>(found), 0.95 * static_cast<double>(tall)) << "the riser's material over 0.3 mm";
+}
+
 // A riser ground down to a 0.3 mm stub (within the casting's 0.5 mm form deviation): fitted on
 // the ground casting, the stub is most of the face around it and reads as the face, so a
 // re-grind would find nothing; measured from the face the first scan saw, the stub is material.

@@ -36,7 +36,9 @@ struct ExcessSettings {
 /// - where the scan saw the face, the local offset: at nodes `local_pitch_mm` apart, a plane
 ///   through the offsets within `kLocalRadiusMm` (x-y) that lie within the form deviation of
 ///   the plane above, trimmed hard on its upper side (what stands on a face, a fin's root or a
-///   riser's foot, is above it) and loosely below;
+///   riser's foot, is above it) and loosely below; without the samples within `kFootMm` of
+///   what stands out of the face (refitted while that shows more), so a riser whose tilted top
+///   meets the face on a ramp of material lower than the form deviation does not lift it;
 /// - elsewhere (under a riser, off the region) the plane.
 /// One plane does not follow sand-cast iron's form along a 140 mm flash; the local face does
 /// (test Excess.TheLocalFaceFollowsAFormThePlaneCannot).
@@ -44,6 +46,10 @@ struct FormOffset {
   /// Sand-cast form has wavelengths of 90 mm and more (the simulator's 90-200 mm): over 10 mm a
   /// plane follows it within 0.03 mm, and a fin's or a riser's foot is a minority of the points.
   static constexpr double kLocalRadiusMm = 10.0;
+  /// The foot of material on a face (a fillet, mixed pixels and interreflection in the
+  /// concave corner, the roughness of a riser's stub) is neither face nor clearly material:
+  /// the face samples this close (x-y) to material are left out.
+  static constexpr double kFootMm = 3.0;
   bool fitted = false;
   double at_origin_mm = 0.0, per_mm_x = 0.0, per_mm_y = 0.0;
   std::size_t points = 0;  ///< the face points the plane was fitted to (after trimming)
