@@ -404,6 +404,45 @@ TEST(Excess, ARiserMeetingTheFaceOnARampLeavesTheFaceWhereItIs) {
   EXPECT_GE(static_cast<double>(found), 0.95 * static_cast<double>(tall)) << "the riser's material over 0.3 mm";
 }
 
+// A riser 40 mm wide on the crest of a 90 mm form wave (+-0.4 mm; the simulator draws 90-200 mm
+// and up to the form deviation): the scan sees no face under it. The region's plane there is the
+// wave's mean, 0.35 mm under the crest, and the nodes beside it, taking their neighbours' slope
+// to the node, stepped between the two; the quadratic of the faces around the riser carries the
+// crest across it.
+TEST(Excess, TheFaceUnderARiserIsInterpolatedNotExtrapolated) {
+  PrepareSettings ps;
+  ps.features = false;
+  const auto t = PreparedCloud::prepare(test::flat_square(50.0f), ps);
+  std::mt19937_64 rng(13);
+  std::normal_distribution<float> noise(0.0f, 0.02f);
+  const auto face = [](float x) { return 0.4f * std::cos(2.0f * static_cast<float>(std::numbers::pi) * x / 90.0f); };
+  const auto on_riser = [](float x, float y) { return x * x + y * y <= 20.0f * 20.0f; };
+  Cloud scene;
+  for (float x = -50; x <= 50; x += 0.5f)
+    for (float y = -50; y <= 50; y += 0.5f)
+      scene.points.emplace_back(x, y, face(x) + (on_riser(x, y) ? 6.0f : 0.0f) + noise(rng));
+  ExcessSettings own;
+  own.form_deviation_mm = 0.5;
+  const auto ex = measure_excess(t, scene, own);
+  ASSERT_TRUE(ex.form.fitted);
+  // under: the riser and its foot, where no face was seen; beside: the face seen around it
+  double under = 0.0, beside = 0.0, plane_under = 0.0;
+  for (float x = -48; x <= 48; x += 0.5f)
+    for (float y = -48; y <= 48; y += 0.5f) {
+      const double e = std::abs(ex.form.at(x, y) - face(x));
+      if (x * x + y * y < 23.0f * 23.0f) {
+        under = std::max(under, e);
+        plane_under = std::max(plane_under, std::abs(ex.form.plane_at(x, y) - face(x)));
+      } else {
+        beside = std::max(beside, e);
+      }
+    }
+  EXPECT_GT(plane_under, 0.3) << "the region's plane under the riser";
+  // a quadratic through the faces 23-33 mm from the centre misses the wave's higher terms there
+  EXPECT_LT(under, 0.1) << "the face under the riser";
+  EXPECT_LT(beside, 0.06) << "the face beside it";
+}
+
 // A riser ground down to a 0.3 mm stub (within the casting's 0.5 mm form deviation): fitted on
 // the ground casting, the stub is most of the face around it and reads as the face, so a
 // re-grind would find nothing; measured from the face the first scan saw, the stub is material.

@@ -38,35 +38,49 @@ struct FaceSample {
   double x, y, h;
 };
 
-/// The offset at (x, y) of a plane through the samples around it: least squares on
-/// (1, dx, dy), then again on the samples no more than 2.5 robust sigmas (at least 0.03 mm)
-/// above it and 4 (at least 0.05 mm) below, three times. What stands on a face lies above it
-/// (a fin's or a riser's foot), so the upper side is trimmed hard; below, only what no face
-/// has (a mixed pixel at a wall's foot), since the passes follow the face down. A plane rather
-/// than a quantile keeps a sloped face's offset at its centre (a quantile of a slope reads low).
-/// NaN where fewer than 8 samples or they lie on one line.
-double local_plane_at(const std::vector<FaceSample>& s, double x, double y) {
-  if (s.size() < 8) return std::numeric_limits<double>::quiet_NaN();
+/// A robust surface of the offsets around (x, y), as polynomial coefficients in (dx, dy) / scale:
+/// a plane (N = 3: 1, u, v) or a quadratic (N = 6: and u^2, uv, v^2). Least squares, then again on
+/// the samples no more than 2.5 robust sigmas (at least 0.03 mm) above it and 4 (at least 0.05 mm)
+/// below, three times. What stands on a face lies above it (a fin's or a riser's foot), so the
+/// upper side is trimmed hard; below, only what no face has (a mixed pixel at a wall's foot),
+/// since the passes follow the face down. A surface rather than a quantile keeps a sloped face's
+/// offset at its centre (a quantile of a slope reads low). The kept samples' centroid (dx, dy)
+/// in `centroid`. Nothing with fewer than 4 N samples or badly conditioned.
+template <int N>
+std::optional<Eigen::Matrix<double, N, 1>> robust_surface(const std::vector<FaceSample>& s, double x, double y,
+                                                          double scale, Eigen::Vector2d& centroid) {
+  using Vec = Eigen::Matrix<double, N, 1>;
+  const auto basis = [&](const FaceSample& p) {
+    const double u = (p.x - x) / scale, v = (p.y - y) / scale;
+    Vec a;
+    a[0] = 1.0, a[1] = u, a[2] = v;
+    if constexpr (N == 6) a[3] = u * u, a[4] = u * v, a[5] = v * v;
+    return a;
+  };
+  constexpr std::size_t kMin = 4 * N;
+  if (s.size() < kMin) return std::nullopt;
   std::vector<char> keep(s.size(), 1);
-  Eigen::Vector3d c = Eigen::Vector3d::Zero();
-  std::vector<double> res(s.size());
+  Vec c = Vec::Zero();
   for (int round = 0; round < 4; ++round) {
-    Eigen::Matrix3d A = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d b = Eigen::Vector3d::Zero();
+    Eigen::Matrix<double, N, N> A = Eigen::Matrix<double, N, N>::Zero();
+    Vec b = Vec::Zero();
     std::size_t n = 0;
     for (std::size_t k = 0; k < s.size(); ++k) {
       if (!keep[k]) continue;
-      const Eigen::Vector3d a(1.0, s[k].x - x, s[k].y - y);
+      const Vec a = basis(s[k]);
       A += a * a.transpose(), b += a * s[k].h, ++n;
     }
-    if (n < 8) return std::numeric_limits<double>::quiet_NaN();
-    const Eigen::LDLT<Eigen::Matrix3d> ldlt(A);
-    if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-6) return std::numeric_limits<double>::quiet_NaN();
+    if (n < kMin) return std::nullopt;
+    const Eigen::LDLT<Eigen::Matrix<double, N, N>> ldlt(A);
+    if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-6) return std::nullopt;
     c = ldlt.solve(b);
-    if (round == 3) break;
-    std::vector<double> abs_kept;
+    if (round == 3) {
+      centroid = scale * Eigen::Vector2d(A(0, 1) / A(0, 0), A(0, 2) / A(0, 0));
+      break;
+    }
+    std::vector<double> res(s.size()), abs_kept;
     for (std::size_t k = 0; k < s.size(); ++k) {
-      res[k] = s[k].h - (c[0] + c[1] * (s[k].x - x) + c[2] * (s[k].y - y));
+      res[k] = s[k].h - basis(s[k]).dot(c);
       if (keep[k]) abs_kept.push_back(std::abs(res[k]));
     }
     const auto mid = abs_kept.begin() + static_cast<std::ptrdiff_t>(abs_kept.size() / 2);
@@ -75,7 +89,113 @@ double local_plane_at(const std::vector<FaceSample>& s, double x, double y) {
     const double above = std::max(0.03, 2.5 * sigma), below = std::max(0.05, 4.0 * sigma);
     for (std::size_t k = 0; k < s.size(); ++k) keep[k] = res[k] <= above && res[k] >= -below;
   }
-  return c[0];
+  return c;
+}
+
+/// The offset at (x, y) of a robust plane through the samples around it (robust_surface), and
+/// whether they lie on one side of it: their kept centroid more than kOneSidedMm from (x, y) (a
+/// half disc's is 4.2 mm off its centre; beside a riser, past its foot, 5-9 mm). On one side,
+/// the samples' slope carried to the node read the face 0.2-0.4 mm off beside a riser: there a
+/// hole's quadratic replaces it (fill_holes). NaN where fewer than 12 samples or they lie on one
+/// line.
+std::pair<double, bool> local_plane_at(const std::vector<FaceSample>& s, double x, double y) {
+  constexpr double kOneSidedMm = 5.0;
+  Eigen::Vector2d centroid;
+  const auto c = robust_surface<3>(s, x, y, 1.0, centroid);
+  if (!c) return {std::numeric_limits<double>::quiet_NaN(), false};
+  return {(*c)[0], centroid.norm() > kOneSidedMm};
+}
+
+/// The nodes without an offset of their own, or with one from samples on one side of them
+/// (`one_sided`). A hole the samples surround (under a riser and along its rim): one
+/// robust quadratic through the samples within kLocalRadiusMm of its nodes, where the mean of
+/// their unit directions from the hole's centre is shorter than 0.4 (a half ring's is 0.64). A
+/// quadratic carries the face's curvature across it: a riser 40 mm wide on the crest of a 90 mm
+/// form wave stands on a face 0.3 mm over the region's plane (test
+/// Excess.TheFaceUnderARiserIsInterpolatedNotExtrapolated). The others (a hole at the edge of
+/// what the scan saw) and any the quadratic fails: the one-sided nodes keep their own offset,
+/// the empty ones the harmonic interpolation of the nodes around them (each the mean of its
+/// neighbours, Gauss-Seidel from the region's plane), never beyond the values around them.
+void fill_holes(const std::vector<FaceSample>& samples, const std::vector<char>& one_sided, FormOffset& f) {
+  const int nx = f.local_nx, ny = f.local_ny;
+  const auto index = [&](int i, int j) { return static_cast<std::size_t>(j) * static_cast<std::size_t>(nx) + static_cast<std::size_t>(i); };
+  const auto node = [&](std::size_t k) {
+    return Eigen::Vector2d(f.local_x0 + static_cast<double>(k % static_cast<std::size_t>(nx)) * f.local_pitch_mm,
+                           f.local_y0 + static_cast<double>(k / static_cast<std::size_t>(nx)) * f.local_pitch_mm);
+  };
+  std::vector<int> component(f.local.size(), -1);
+  std::vector<std::size_t> harmonic;
+  int next = 0;
+  const auto in_hole = [&](std::size_t k) { return std::isnan(f.local[k]) || one_sided[k]; };
+  for (std::size_t seed = 0; seed < f.local.size(); ++seed) {
+    if (!in_hole(seed) || component[seed] >= 0) continue;
+    // the hole's nodes (4-connected); one on the grid's border is not surrounded
+    std::vector<std::size_t> hole{seed};
+    component[seed] = next;
+    bool border = false;
+    for (std::size_t h = 0; h < hole.size(); ++h) {
+      const int i = static_cast<int>(hole[h] % static_cast<std::size_t>(nx)), j = static_cast<int>(hole[h] / static_cast<std::size_t>(nx));
+      border = border || i == 0 || j == 0 || i == nx - 1 || j == ny - 1;
+      for (const auto& [a, b] : {std::pair{i - 1, j}, std::pair{i + 1, j}, std::pair{i, j - 1}, std::pair{i, j + 1}}) {
+        if (a < 0 || b < 0 || a >= nx || b >= ny) continue;
+        const auto k = index(a, b);
+        if (in_hole(k) && component[k] < 0) component[k] = next, hole.push_back(k);
+      }
+    }
+    ++next;
+    std::optional<Eigen::Matrix<double, 6, 1>> quadratic;
+    Eigen::Vector2d centre = Eigen::Vector2d::Zero(), lo = node(hole.front()), hi = lo;
+    for (const auto k : hole) centre += node(k), lo = lo.cwiseMin(node(k)), hi = hi.cwiseMax(node(k));
+    centre /= static_cast<double>(hole.size());
+    const double scale = 0.5 * (hi - lo).norm() + FormOffset::kLocalRadiusMm;
+    if (!border) {
+      std::vector<FaceSample> ring;
+      Eigen::Vector2d direction = Eigen::Vector2d::Zero();
+      const double r = FormOffset::kLocalRadiusMm + f.local_pitch_mm;
+      for (const auto& p : samples) {
+        const Eigen::Vector2d q(p.x, p.y);
+        if ((q.array() < lo.array() - r).any() || (q.array() > hi.array() + r).any()) continue;
+        bool near = false;
+        for (const auto k : hole)
+          if ((q - node(k)).squaredNorm() <= r * r) {
+            near = true;
+            break;
+          }
+        if (!near) continue;
+        ring.push_back(p);
+        if ((q - centre).norm() > 1e-9) direction += (q - centre).normalized();
+      }
+      Eigen::Vector2d centroid;
+      if (!ring.empty() && direction.norm() / static_cast<double>(ring.size()) < 0.4)
+        quadratic = robust_surface<6>(ring, centre.x(), centre.y(), scale, centroid);
+    }
+    for (const auto k : hole) {
+      if (!quadratic) {
+        if (std::isnan(f.local[k])) harmonic.push_back(k);
+        continue;
+      }
+      const Eigen::Vector2d uv = (node(k) - centre) / scale;
+      const auto& c = *quadratic;
+      f.local[k] = static_cast<float>(c[0] + c[1] * uv.x() + c[2] * uv.y() + c[3] * uv.x() * uv.x() +
+                                      c[4] * uv.x() * uv.y() + c[5] * uv.y() * uv.y());
+    }
+  }
+  if (harmonic.empty() || harmonic.size() == f.local.size()) return;
+  for (const auto k : harmonic) f.local[k] = static_cast<float>(f.plane_at(node(k).x(), node(k).y()));
+  for (int sweep = 0; sweep < 500; ++sweep) {
+    double change = 0.0;
+    for (const auto k : harmonic) {
+      const int i = static_cast<int>(k % static_cast<std::size_t>(nx)), j = static_cast<int>(k / static_cast<std::size_t>(nx));
+      double sum = 0.0;
+      int n = 0;
+      for (const auto& [a, b] : {std::pair{i - 1, j}, std::pair{i + 1, j}, std::pair{i, j - 1}, std::pair{i, j + 1}})
+        if (a >= 0 && b >= 0 && a < nx && b < ny) sum += f.local[index(a, b)], ++n;
+      const double v = sum / n;
+      change = std::max(change, std::abs(v - f.local[k]));
+      f.local[k] = static_cast<float>(v);
+    }
+    if (change < 1e-4) break;
+  }
 }
 
 /// The local offsets of a FormOffset (see there): at nodes `pitch` apart over the samples'
@@ -99,6 +219,7 @@ void fit_local_offsets(const std::vector<FaceSample>& samples, FormOffset& f) {
   }
   const int reach = static_cast<int>(std::ceil(r / p));
   f.local.assign(cells, std::numeric_limits<float>::quiet_NaN());
+  std::vector<char> one_sided(cells, 0);
   std::vector<FaceSample> near;
   for (int j = 0; j < f.local_ny; ++j)
     for (int i = 0; i < f.local_nx; ++i) {
@@ -109,8 +230,11 @@ void fit_local_offsets(const std::vector<FaceSample>& samples, FormOffset& f) {
           for (const auto k : in_cell[cell_of(ii, jj)])
             if ((samples[k].x - x) * (samples[k].x - x) + (samples[k].y - y) * (samples[k].y - y) <= r * r)
               near.push_back(samples[k]);
-      f.local[cell_of(i, j)] = static_cast<float>(local_plane_at(near, x, y));
+      const auto [offset, on_one_side] = local_plane_at(near, x, y);
+      f.local[cell_of(i, j)] = static_cast<float>(offset);
+      one_sided[cell_of(i, j)] = on_one_side ? 1 : 0;
     }
+  fill_holes(samples, one_sided, f);
 }
 
 /// The samples that lie clear of what stands on the face: those farther than

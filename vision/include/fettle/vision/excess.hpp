@@ -39,7 +39,9 @@ struct ExcessSettings {
 ///   riser's foot, is above it) and loosely below; without the samples within `kFootMm` of
 ///   what stands out of the face (refitted while that shows more), so a riser whose tilted top
 ///   meets the face on a ramp of material lower than the form deviation does not lift it;
-/// - elsewhere (under a riser, off the region) the plane.
+/// - under a riser (nodes with no samples or samples on one side only): a quadratic through the
+///   faces around it where they surround it, else harmonic from the nodes around;
+/// - beyond the nodes by more than `kLocalRadiusMm` (off the region), the plane.
 /// One plane does not follow sand-cast iron's form along a 140 mm flash; the local face does
 /// (test Excess.TheLocalFaceFollowsAFormThePlaneCannot).
 struct FormOffset {
