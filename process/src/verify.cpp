@@ -248,69 +248,70 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
                                   const std::vector<Trajectory>& ground, const VerifyOptions& options,
                                   const Progress& progress) {
   const auto& recipe = loaded.recipe;
-  // The casting's own face (options.before): where the first scan saw the body's upward faces
-  // near a point (its points on upward template faces within twice the form deviation of the
-  // template; within 1.5 mm, else 4, else 8), the lower quartile of their signed distances
-  // (material stands on the face: a fin's root, a riser's foot); the same camera saw both
-  // scans, so its calibration and smooth depth errors cancel. Where the first scan saw only material within 8 mm (under a wide riser), the
-  // region's form offset (a plane fitted in its ROI). Either is scaled by how much the
-  // template's face there points up (the z-derivative of the signed distance: 1 on a top face,
-  // 0 on a wall). Docs: docs/planning.md, "verify".
+  // The casting's own face (options.before). Where a region's face was fitted (over its nodes:
+  // the ROI and 10 mm around it), the face as the first inspection
+  // fitted it (vision::FormOffset: local, without the foot of what stood on it, carried under a
+  // riser by the faces around it), at the re-scan point placed where the camera saw it in the
+  // first inspection's frame of the region (the same camera saw both scans, so its calibration
+  // and smooth depth errors cancel, and the re-scan's own located pose, which the removed
+  // material moves, does not enter). The first scan's own points around a point are no face
+  // where material lower than twice the form deviation stood: on the low side of a tilted riser
+  // they are 0.5-1 mm of it, and its ground face read as a 1 mm gouge. Beyond (a tool's
+  // footprint outside its ROI, where no material stands; the nearest node's offset 9 mm out on a
+  // sloped plate read a 0.3 mm gouge), the lower quartile of the signed
+  // distances of the first scan's points on upward faces within twice the form deviation of the
+  // template within 1.5 mm (else 4, else 8), the first scan placed where the camera saw it and
+  // then into the re-scan's part frame; a region's plane there is 30-60 mm from the faces it was
+  // fitted to. Where neither, the plane. Each offset is held within twice the form deviation and
+  // scaled by how much the template's face there points up (the z-derivative of the signed
+  // distance: 1 on a top face, 0 on a wall; a body's form moves its faces up and down, not its
+  // walls). Docs: docs/planning.md, "verify".
   std::vector<const vision::FormOffset*> form(recipe.regions.size(), nullptr);
-  if (options.before != nullptr && options.before->regions.size() == recipe.regions.size())
-    for (std::size_t i = 0; i < form.size(); ++i)
-      if (options.before->regions[i].excess.form.fitted) form[i] = &options.before->regions[i].excess.form;
+  std::vector<Eigen::Isometry3d> T_first_region_rescan(recipe.regions.size(), Eigen::Isometry3d::Identity());
   const double form_mm = recipe.vision.form_deviation_mm;
   constexpr std::array<double, 3> kFaceRadiiMm{1.5, 4.0, 8.0};
   constexpr std::size_t kFacePoints = 5;
-  // The first scan's points within twice the form deviation of the template (the form, plus as
-  // much again from the pose a best fit to a deformed body takes: a plate top stands 0.5-0.8 mm
-  // over the located template under the realistic budget), and of them the lower quartile: what
-  // stands on a face (a fin's root, a riser's foot, a wall's top edge) is above it, not below.
   constexpr double kFaceWindow = 2.0;
   constexpr double kFaceQuantile = 0.25;
+  constexpr double kUpwardFace = 0.8;  // as the form offset's upward faces (normal z >= 0.8)
   std::vector<Eigen::Vector3f> first_pts;  // the first scan in the re-scan's part frame (set once it is located)
   std::optional<PointCells> first;
   std::vector<float> first_sd;  // the first scan's signed distances, NaN until asked for
   std::vector<float> first_up;  // how much the template's face points up there (set with first_sd)
   std::vector<float> near_first;
-  // how much the template's face at q points up: the z-derivative of its signed distance
   const auto upness = [&](const Vec3& q) {
     constexpr double h = 0.25;
     return std::clamp((loaded.template_sdf(q + Vec3(0, 0, h)) - loaded.template_sdf(q - Vec3(0, 0, h))) / (2 * h), 0.0, 1.0);
   };
-  constexpr double kUpwardFace = 0.8;  // as the form offset's upward faces (normal z >= 0.8)
-  // q: where the template's distance is taken (the region's frame), p: the point in the
-  // re-scan's part frame (where the first scan's face is looked up), f: the region's form offset
-  const auto from_face = [&](const Vec3& q, const Vec3& p, const vision::FormOffset* f) {
-    const double d = loaded.template_sdf(q);
-    if (!first && f == nullptr) return d;
-    // the body's form moves faces up and down, not walls: a wall keeps the template
-    const double up = upness(q);
-    if (up < 1e-3) return d;
-    if (first) {
-      // the nearest ring of the first scan holding enough of the body's upward face (under a
-      // fin the face beside it; under a riser, none within reach)
-      for (const double radius : kFaceRadiiMm) {
-        near_first.clear();
-        first->within(p, radius, [&](std::size_t i) {
-          if (std::isnan(first_sd[i])) {
-            const Vec3 x = first_pts[i].cast<double>();
-            first_sd[i] = static_cast<float>(loaded.template_sdf(x));
-            first_up[i] = static_cast<float>(upness(x));
-          }
-          if (first_up[i] >= kUpwardFace && std::abs(first_sd[i]) <= kFaceWindow * form_mm)
-            near_first.push_back(first_sd[i]);
-        });
-        if (near_first.size() < kFacePoints) continue;
-        return d - up * quantile_of(near_first, kFaceQuantile);
-      }
+  const auto held = [&](double offset) { return std::clamp(offset, -2.0 * form_mm, 2.0 * form_mm); };
+  // the distance of a re-scan point from region i's face (else the template): q in the re-scan's
+  // frame of the region, p in its part frame
+  const auto from_face = [&](const Vec3& q, const Vec3& p, std::size_t i) {
+    if (form[i] == nullptr) return loaded.template_sdf(q);
+    const Vec3 q1 = T_first_region_rescan[i] * p;
+    const auto& f = *form[i];
+    const bool within = q1.x() >= f.local_x0 && q1.y() >= f.local_y0 &&
+                        q1.x() <= f.local_x0 + (f.local_nx - 1) * f.local_pitch_mm &&
+                        q1.y() <= f.local_y0 + (f.local_ny - 1) * f.local_pitch_mm;
+    if (const auto local = within ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
+      const double up = upness(q1);
+      return loaded.template_sdf(q1) - up * held(*local);
     }
-    // the plane held within twice the form deviation (the form, plus as much again from the
-    // pose a fit to a deformed body takes): a slope fitted across a narrow ROI (the straight
-    // flash's is 20 mm wide) runs away beyond it
-    const double offset = f != nullptr ? std::clamp(f->at(q.x(), q.y()), -2.0 * form_mm, 2.0 * form_mm) : 0.0;
-    return d - up * offset;
+    const double d = loaded.template_sdf(q), up = upness(q);
+    if (up < 1e-3) return d;
+    for (const double radius : kFaceRadiiMm) {
+      near_first.clear();
+      first->within(p, radius, [&](std::size_t k) {
+        if (std::isnan(first_sd[k])) {
+          const Vec3 x = first_pts[k].cast<double>();
+          first_sd[k] = static_cast<float>(loaded.template_sdf(x));
+          first_up[k] = static_cast<float>(upness(x));
+        }
+        if (first_up[k] >= kUpwardFace && std::abs(first_sd[k]) <= kFaceWindow * form_mm) near_first.push_back(first_sd[k]);
+      });
+      if (near_first.size() >= kFacePoints) return d - up * quantile_of(near_first, kFaceQuantile);
+    }
+    return d - up * held(form[i]->plane_at(q.x(), q.y()));
   };
   const auto& vs = recipe.verification;
   VerificationResult out;
@@ -321,16 +322,24 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   const auto t0 = Clock::now();
   report(progress, 2, total, "verify");
   out.T_base_part = ins->whole.T_scene_template;
-  // The two scans compared where the camera saw them (the part stays on the fixture): the first
-  // scan's points placed with its own pose, then into the part frame the re-scan located. The
-  // two located poses differ (the material changes the fit), the camera's errors do not.
-  if (options.before != nullptr && form_mm > 0.0) {
-    const Eigen::Isometry3f T = (out.T_base_part.inverse() * options.before->whole.T_scene_template).cast<float>();
+  if (options.before != nullptr && form_mm > 0.0 && options.before->regions.size() == recipe.regions.size()) {
+    // re-scan part frame -> base -> the first inspection's part frame -> its region frame
+    const Transform T_first_part_rescan = options.before->whole.T_scene_template.inverse() * out.T_base_part;
+    const Eigen::Isometry3f T = T_first_part_rescan.inverse().cast<float>();
     first_pts.reserve(options.before->scene_part.points.size());
     for (const auto& p : options.before->scene_part.points) first_pts.push_back(T * p);
     first.emplace(first_pts, kFaceRadiiMm[0]);
     first_sd.assign(first_pts.size(), std::numeric_limits<float>::quiet_NaN());
     first_up.assign(first_pts.size(), 0.0F);
+    for (std::size_t i = 0; i < form.size(); ++i) {
+      const auto& before = options.before->regions[i];
+      if (!before.excess.form.fitted) continue;
+      form[i] = &before.excess.form;
+      const Transform T_region_part = before.ok() ? Transform(before.registration.T_scene_template.inverse() *
+                                                              options.before->whole.T_scene_template)
+                                                  : Transform::Identity();
+      T_first_region_rescan[i] = T_region_part * T_first_part_rescan;
+    }
   }
   for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
     const auto& region = recipe.regions[i];
@@ -351,8 +360,8 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     std::vector<float> residual;
     residual.reserve(pts.size());
     for (std::size_t k = 0; k < pts.size(); ++k)
-      residual.push_back(static_cast<float>(from_face(pts[k].cast<double>(), pts_part[k].cast<double>(), form[i])));
-    const bool against_casting = first.has_value() || form[i] != nullptr;
+      residual.push_back(static_cast<float>(from_face(pts[k].cast<double>(), pts_part[k].cast<double>(), i)));
+    const bool against_casting = form[i] != nullptr;
     out.regions.push_back(judge_region(region, recipe.verification,
                                        static_cast<std::size_t>(recipe.vision.min_region_points), std::move(pts),
                                        std::move(residual), against_casting ? "casting's own face" : "template"));
@@ -393,7 +402,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       const Vec3 q = scene[k].cast<double>();
       const auto at = place(q, region, in_roi);
       if (at && !in_roi) ++out.footprint_points;
-      residual[k] = static_cast<float>(at ? from_face(q, q, form[*at]) : loaded.template_sdf(q));
+      residual[k] = static_cast<float>(at ? from_face(q, q, *at) : loaded.template_sdf(q));
     }
     // candidates from half the gouge depth: the deepest confirmed place is reported even when it
     // is no gouge

@@ -242,11 +242,11 @@ struct VerificationResult {
 
 struct VerifyOptions {
   /// The first inspection of this casting (ProcessOutput::inspection), or none. With a recipe's
-  /// form_deviation_mm its scan shows the casting's own faces before grinding (where it saw
-  /// none, its regions' form offsets stand in), and the re-scan is judged against those: a body
-  /// that stands 0.4 mm under the nominal is neither a gouge nor, where it stands over it,
-  /// material left. Only upward faces move (walls keep the template). Tests
-  /// Pipeline.VerifyTheCastingsOwnFace*.
+  /// form_deviation_mm its regions' faces (vision::FormOffset) are the casting's own before
+  /// grinding, and the re-scan, placed where the camera saw it in the first inspection's frame,
+  /// is judged against those: a body that stands 0.4 mm under the nominal is neither a gouge
+  /// nor, where it stands over it, material left. Only upward faces move (walls keep the
+  /// template). Tests Pipeline.VerifyTheCastingsOwnFace*.
   const vision::Inspection* before = nullptr;
 };
 
