@@ -316,6 +316,19 @@ PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, 
   return u;
 }
 
+RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
+                                         const CutOffset& measured, const config::CompensationSection& settings) {
+  RegrindCompensation out;
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity(), P = measured.observed, Q = I - P;
+  out.bias_mm = P * measured.offset_mm + Q * cell.bias_mm;
+  const auto usual = placement_uncertainty(safety, cell, settings);
+  if (usual.bound_mm2.isZero()) return out;  // nothing stated: the regions' allowances alone
+  const Eigen::Matrix3d scatter = measured.std_mm.cwiseAbs2().asDiagonal();
+  const double repeatability2 = safety.robot_repeatability_mm * safety.robot_repeatability_mm;
+  out.placement.bound_mm2 = Q * usual.bound_mm2 * Q + P * (repeatability2 * I + scatter) * P;
+  return out;
+}
+
 std::string CellBias::describe() const {
   return fmt3(bias_mm, 3) + " mm after " + std::to_string(updates) + " cycle" + (updates == 1 ? "" : "s");
 }

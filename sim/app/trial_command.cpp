@@ -551,11 +551,13 @@ int trial(const Args& a) {
     auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory}, vo);
     const std::string first_verdict = ver ? fettle::process::to_string(ver->verdict) : "error";
     sj["first_verdict"] = first_verdict;
+    std::optional<fettle::process::CutOffset> cut_offset;  // this cycle's, for its re-grind
     if (ver && learning) {
       json cj;
       cj["bias_before_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};
       const auto measured = fettle::process::measure_cut_offset(loaded, out->inspection, {out->trajectory}, *ver);
       if (measured) {
+        cut_offset = *measured;
         cell_bias.update(*measured, cell.compensation);
         cj["measured_mm"] = {measured->offset_mm.x(), measured->offset_mm.y(), measured->offset_mm.z()};
         cj["measured_std_mm"] = {measured->std_mm.x(), measured->std_mm.y(), measured->std_mm.z()};
@@ -582,6 +584,11 @@ int trial(const Args& a) {
       ro.cell_bias_mm = learning ? cell_bias.bias_mm : fettle::Vec3::Zero();
       ro.placement_bound_mm2 = fettle::process::placement_uncertainty(
           cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation).bound_mm2;
+      if (cut_offset) {  // what this cycle's grind measured, as fettled does
+        const auto rc = fettle::process::regrind_compensation(cell.safety, cell_bias, *cut_offset, cell.compensation);
+        ro.cell_bias_mm = rc.bias_mm;
+        ro.placement_bound_mm2 = rc.placement.bound_mm2;
+      }
       ro.before = &out->inspection;
       std::fprintf(stderr, ", re-grind");
       json rg;

@@ -180,6 +180,33 @@ TEST(Compensation, PlacementUncertaintyShrinksAlongWhatTheCellLearnedOnly) {
   EXPECT_TRUE(fp::placement_uncertainty(fettle::config::SafetySection{}, bias, settings).bound_mm2.isZero());
 }
 
+// A re-grind after a first grind that measured the cut 0.22 mm low (+-0.002) on faces that look
+// up: along z it is commanded with that offset and bounded by the repeatability and that scatter
+// (0.15 mm, not the 0.29 mm a cell that has learned nothing keeps); sideways, which the cut did
+// not observe, it keeps the cell's estimate and the whole stated bound.
+TEST(Compensation, AReGrindIsBoundedByWhatItsCycleMeasured) {
+  fettle::config::SafetySection safety;
+  safety.calibration_accuracy_mm = 0.20;
+  safety.robot_accuracy_mm = 0.15;
+  safety.robot_repeatability_mm = 0.15;
+  const fettle::config::CompensationSection settings;
+  fp::CellBias cell;
+  cell.bias_mm = Vec3(0.03, -0.02, -0.05);
+  fp::CutOffset measured;
+  measured.observed = Vec3(0.0, 0.0, 1.0).asDiagonal();
+  measured.offset_mm = Vec3(0.0, 0.0, -0.22);
+  measured.std_mm = Vec3(0.0, 0.0, 0.002);
+  const auto r = fp::regrind_compensation(safety, cell, measured, settings);
+  EXPECT_LT((r.bias_mm - Vec3(0.03, -0.02, -0.22)).norm(), 1e-12);
+  EXPECT_NEAR(r.placement.along_mm(Vec3::UnitZ()), std::hypot(0.15, 0.002), 1e-9);
+  const double all = std::sqrt(0.2 * 0.2 + 0.15 * 0.15 + 0.15 * 0.15);
+  EXPECT_NEAR(r.placement.along_mm(Vec3::UnitX()), all, 1e-9);
+  EXPECT_NEAR(r.placement.along_mm(Vec3::UnitY()), all, 1e-9);
+  EXPECT_NEAR(fp::placement_uncertainty(safety, cell, settings).along_mm(Vec3::UnitZ()), all, 1e-9);
+  // nothing stated: nothing kept beyond the regions' allowances
+  EXPECT_TRUE(fp::regrind_compensation(fettle::config::SafetySection{}, cell, measured, settings).placement.bound_mm2.isZero());
+}
+
 TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   const auto dir = std::filesystem::temp_directory_path() / ("fettle-comp-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);

@@ -429,6 +429,14 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     po.regions = v->regrind_regions();
     po.cell_bias_mm = c.cell_bias_mm;
     po.placement_bound_mm2 = c.placement.bound_mm2;
+    if (cell.compensation.enabled && c.cut_offset && *c.cut_offset) {
+      // what this cycle's grind measured (process::regrind_compensation)
+      const auto rc = process::regrind_compensation(cell.safety, cell_bias, c.cut_offset->value(), cell.compensation);
+      po.cell_bias_mm = rc.bias_mm;
+      po.placement_bound_mm2 = rc.placement.bound_mm2;
+      log->info("cycle {}: the re-grind keeps {} from the template (what this cycle's grind measured)", c.summary.id,
+                rc.placement.describe());
+    }
     po.before = c.processed ? &c.processed->inspection : nullptr;  // the casting's faces as first seen
     log->info("cycle {}: re-grind of {} region(s): {}", c.summary.id, po.regions.size(), fmt::join(po.regions, ", "));
     c.first_verification = std::move(v);

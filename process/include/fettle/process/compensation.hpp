@@ -101,6 +101,20 @@ struct PlacementUncertainty {
 PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const CellBias& bias,
                                            const config::CompensationSection& settings);
 
+/// A re-grind in the cycle whose first grind measured `measured`: along the directions that
+/// measurement observed it is commanded with the offset measured (this casting, this place, this
+/// tool, minutes ago, over thousands of points) and bounded by the stated repeatability and the
+/// measurement's own scatter; along the others, as `cell` and placement_uncertainty() have it.
+/// The cell's smoothed estimate still holds part of the stated systematic error after a few
+/// cycles, and a re-grind bounded by it keeps the stub the first grind left (0.3-0.5 mm on a
+/// riser under the realistic error budget). Test Compensation.AReGrindIsBoundedByWhatItsCycleMeasured.
+struct RegrindCompensation {
+  Vec3 bias_mm = Vec3::Zero();
+  PlacementUncertainty placement;
+};
+RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
+                                         const CutOffset& measured, const config::CompensationSection& settings);
+
 /// The state file: JSON {"bias_mm": [x, y, z], "updates": n, "calibration_id", "tools_id"}.
 /// load_cell_bias() returns a zero bias when the file does not exist; a file it cannot read is
 /// an Error naming it (the caller starts from zero and says so).
