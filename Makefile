@@ -121,13 +121,15 @@ bench: build
 # part. Results in $(BUILD_DIR)/accuracy/.
 # The run's summary.md goes into docs/results.md, pass or fail. ERRORS=config/sim/errors-realistic.toml
 # runs it in a world with a real cell's errors (docs/simulator.md, "Error budget"), into its own
-# section.
+# section; CELL_SEED draws that cell's calibration and robot errors (default 1; the summary names it).
 ACCURACY_SEEDS ?= random:50
 ERRORS ?=
+CELL_SEED ?=
 accuracy: build
 	rm -f $(BUILD_DIR)/accuracy/summary.md
 	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \
-	  --seeds $(ACCURACY_SEEDS) $(if $(ERRORS),--errors $(ERRORS)) --out $(BUILD_DIR)/accuracy; status=$$?; \
+	  --seeds $(ACCURACY_SEEDS) $(if $(ERRORS),--errors $(ERRORS)) $(if $(CELL_SEED),--cell-seed $(CELL_SEED)) \
+	  --out $(BUILD_DIR)/accuracy; status=$$?; \
 	  scripts/update-results $(if $(ERRORS),accuracy-errors,accuracy) $(BUILD_DIR)/accuracy/summary.md && exit $$status
 
 # Which error of a real cell matters most: each source of config/sim/errors-realistic.toml alone,
