@@ -126,6 +126,32 @@ PreparedCloud flat_template() {
   return PreparedCloud::prepare(test::flat_square(20.0f), ps);
 }
 
+/// A flat template, the plane z = 0 over +-half mm on a 0.5 mm grid, without features.
+PreparedCloud flat_template(float half) {
+  PrepareSettings ps;
+  ps.features = false;
+  return PreparedCloud::prepare(test::flat_square(half), ps);
+}
+
+/// What a camera sees over the grid x in [-half_x, half_x], y in [-half_y, half_y], `step` apart:
+/// height(x, y) plus 0.02 mm of noise drawn from `seed`.
+template <class Height>
+Cloud grid_scene(float half_x, float half_y, float step, std::uint64_t seed, Height height) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<float> noise(0.0f, 0.02f);
+  Cloud scene;
+  for (float x = -half_x; x <= half_x; x += step)
+    for (float y = -half_y; y <= half_y; y += step) scene.points.emplace_back(x, y, height(x, y) + noise(rng));
+  return scene;
+}
+
+/// The excess measured from the casting's own face, with sand-cast iron's 0.5 mm form deviation.
+ExcessSettings against_own_face() {
+  ExcessSettings own;
+  own.form_deviation_mm = 0.5;
+  return own;
+}
+
 }  // namespace
 
 TEST(Inspect, FindsEveryRegionAtTheTruePoseAndMeasuresTheRiser) {
@@ -336,20 +362,11 @@ TEST(Excess, TheCastingsFormDeviationIsNotMaterial) {
 // deviation) with a bump of material on it: the local face follows the wave, so only the bump
 // is material.
 TEST(Excess, TheLocalFaceFollowsAFormThePlaneCannot) {
-  PrepareSettings ps;
-  ps.features = false;
-  const auto t = PreparedCloud::prepare(test::flat_square(60.0f), ps);
-  Cloud scene;
-  std::mt19937_64 rng(5);
-  std::normal_distribution<float> noise(0.0f, 0.02f);
+  const auto t = flat_template(60.0f);
   const auto face = [](float x) { return 0.5f * std::sin(2.0f * static_cast<float>(std::numbers::pi) * x / 100.0f); };
   const auto on_bump = [](float x, float y) { return std::abs(x - 6) <= 3 && std::abs(y) <= 3; };
-  for (float x = -60; x <= 60; x += 0.25f)
-    for (float y = -20; y <= 20; y += 0.25f)
-      scene.points.emplace_back(x, y, face(x) + (on_bump(x, y) ? 1.5f : 0.0f) + noise(rng));
-  ExcessSettings own;
-  own.form_deviation_mm = 0.5;
-  const auto ex = measure_excess(t, scene, own);
+  const auto scene = grid_scene(60, 20, 0.25f, 5, [&](float x, float y) { return face(x) + (on_bump(x, y) ? 1.5f : 0.0f); });
+  const auto ex = measure_excess(t, scene, against_own_face());
   ASSERT_TRUE(ex.form.fitted);
   double worst = 0.0, worst_plane = 0.0;
   for (float x = -58; x <= 58; x += 0.5f)
@@ -373,21 +390,13 @@ TEST(Excess, TheLocalFaceFollowsAFormThePlaneCannot) {
 // tilts up the ramp and reads the face 0.2-0.5 mm high, and the riser's last pass leaves that
 // much; left out as the foot of material, the face stays where it is.
 TEST(Excess, ARiserMeetingTheFaceOnARampLeavesTheFaceWhereItIs) {
-  PrepareSettings ps;
-  ps.features = false;
-  const auto t = PreparedCloud::prepare(test::flat_square(40.0f), ps);
-  std::mt19937_64 rng(11);
-  std::normal_distribution<float> noise(0.0f, 0.02f);
+  const auto t = flat_template(40.0f);
   constexpr float face = 0.1f;
   const auto riser = [](float x, float y) {  // material over the face, 0 where there is none
     return x * x + y * y <= 15.0f * 15.0f ? std::max(0.0f, 1.0f + 0.2f * x) : 0.0f;
   };
-  Cloud scene;
-  for (float x = -40; x <= 40; x += 0.5f)
-    for (float y = -40; y <= 40; y += 0.5f) scene.points.emplace_back(x, y, face + riser(x, y) + noise(rng));
-  ExcessSettings own;
-  own.form_deviation_mm = 0.5;
-  const auto ex = measure_excess(t, scene, own);
+  const auto scene = grid_scene(40, 40, 0.5f, 11, [&](float x, float y) { return face + riser(x, y); });
+  const auto ex = measure_excess(t, scene, against_own_face());
   ASSERT_TRUE(ex.form.fitted);
   double worst = 0.0;
   float wx = 0, wy = 0;
@@ -410,20 +419,11 @@ TEST(Excess, ARiserMeetingTheFaceOnARampLeavesTheFaceWhereItIs) {
 // to the node, stepped between the two; the quadratic of the faces around the riser carries the
 // crest across it.
 TEST(Excess, TheFaceUnderARiserIsInterpolatedNotExtrapolated) {
-  PrepareSettings ps;
-  ps.features = false;
-  const auto t = PreparedCloud::prepare(test::flat_square(50.0f), ps);
-  std::mt19937_64 rng(13);
-  std::normal_distribution<float> noise(0.0f, 0.02f);
+  const auto t = flat_template(50.0f);
   const auto face = [](float x) { return 0.4f * std::cos(2.0f * static_cast<float>(std::numbers::pi) * x / 90.0f); };
   const auto on_riser = [](float x, float y) { return x * x + y * y <= 20.0f * 20.0f; };
-  Cloud scene;
-  for (float x = -50; x <= 50; x += 0.5f)
-    for (float y = -50; y <= 50; y += 0.5f)
-      scene.points.emplace_back(x, y, face(x) + (on_riser(x, y) ? 6.0f : 0.0f) + noise(rng));
-  ExcessSettings own;
-  own.form_deviation_mm = 0.5;
-  const auto ex = measure_excess(t, scene, own);
+  const auto scene = grid_scene(50, 50, 0.5f, 13, [&](float x, float y) { return face(x) + (on_riser(x, y) ? 6.0f : 0.0f); });
+  const auto ex = measure_excess(t, scene, against_own_face());
   ASSERT_TRUE(ex.form.fitted);
   // under: the riser and its foot, where no face was seen; beside: the face seen around it
   double under = 0.0, beside = 0.0, plane_under = 0.0;
@@ -447,20 +447,11 @@ TEST(Excess, TheFaceUnderARiserIsInterpolatedNotExtrapolated) {
 // the ground casting, the stub is most of the face around it and reads as the face, so a
 // re-grind would find nothing; measured from the face the first scan saw, the stub is material.
 TEST(Excess, AReGrindMeasuresFromTheFaceTheFirstScanSaw) {
-  PrepareSettings ps;
-  ps.features = false;
-  const auto t = PreparedCloud::prepare(test::flat_square(40.0f), ps);
+  const auto t = flat_template(40.0f);
   const auto casting = [](float riser_mm) {
-    Cloud scene;
-    std::mt19937_64 rng(9);
-    std::normal_distribution<float> noise(0.0f, 0.02f);
-    for (float x = -40; x <= 40; x += 0.5f)
-      for (float y = -40; y <= 40; y += 0.5f)
-        scene.points.emplace_back(x, y, 0.1f + (x * x + y * y <= 64.0f ? riser_mm : 0.0f) + noise(rng));
-    return scene;
+    return grid_scene(40, 40, 0.5f, 9, [&](float x, float y) { return 0.1f + (x * x + y * y <= 64.0f ? riser_mm : 0.0f); });
   };
-  ExcessSettings own;
-  own.form_deviation_mm = 0.5;
+  const ExcessSettings own = against_own_face();
   const auto first = measure_excess(t, casting(3.0f), own);
   ASSERT_TRUE(first.form.fitted);
   const auto ground = casting(0.3f);
