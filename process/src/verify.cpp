@@ -256,7 +256,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   // and smooth depth errors cancel, and the re-scan's own located pose, which the removed
   // material moves, does not enter). The first scan's own points around a point are no face
   // where material lower than twice the form deviation stood: on the low side of a tilted riser
-  // they are 0.5-1 mm of it, and its ground face read as a 1 mm gouge. Beyond (a tool's
+  // they are 0.5-1 mm of it, and its ground face would read as a 1 mm gouge. Beyond (a tool's
   // footprint outside its ROI, where no material stands; the nearest node's offset 9 mm out on a
   // sloped plate read a 0.3 mm gouge), the lower quartile of the signed
   // distances of the first scan's points on upward faces within twice the form deviation of the

@@ -95,7 +95,7 @@ std::optional<Eigen::Matrix<double, N, 1>> robust_surface(const std::vector<Face
 /// The offset at (x, y) of a robust plane through the samples around it (robust_surface), and
 /// whether they lie on one side of it: their kept centroid more than kOneSidedMm from (x, y) (a
 /// half disc's is 4.2 mm off its centre; beside a riser, past its foot, 5-9 mm). On one side,
-/// the samples' slope carried to the node read the face 0.2-0.4 mm off beside a riser: there a
+/// the samples' slope carried to the node reads the face 0.2-0.4 mm off beside a riser: there a
 /// hole's quadratic replaces it (fill_holes). NaN where fewer than 12 samples or they lie on one
 /// line.
 std::pair<double, bool> local_plane_at(const std::vector<FaceSample>& s, double x, double y) {
