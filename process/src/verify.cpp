@@ -290,10 +290,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
     if (form[i] == nullptr) return loaded.template_sdf(q);
     const Vec3 q1 = T_first_region_rescan[i] * p;
     const auto& f = *form[i];
-    const bool within = q1.x() >= f.local_x0 && q1.y() >= f.local_y0 &&
-                        q1.x() <= f.local_x0 + (f.local_nx - 1) * f.local_pitch_mm &&
-                        q1.y() <= f.local_y0 + (f.local_ny - 1) * f.local_pitch_mm;
-    if (const auto local = within ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
+    if (const auto local = f.over_nodes(q1.x(), q1.y()) ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
       const double up = upness(q1);
       return loaded.template_sdf(q1) - up * held(*local);
     }

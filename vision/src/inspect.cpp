@@ -334,6 +334,21 @@ std::optional<Error> empty_fixture(const config::PartRecipe& recipe, const PartT
                    std::to_string(seen_from_above) + " from above); place a part, or check the [fixture] position_mm of the recipe", ErrorKind::no_part};
 }
 
+/// How a region's excess is measured (inspect() and measure_region_excess()): the material
+/// inside the ROI, the casting's face from its context too (a tool reaches beyond the ROI by its
+/// radius); `face`: the casting's face to measure from, null: fitted on the scene.
+ExcessSettings region_excess_settings(const config::PartRecipe& recipe, const RegionTemplate& rt,
+                                      const FormOffset* face = nullptr) {
+  ExcessSettings es;
+  es.threshold_mm = rt.region.excess_threshold_mm;
+  es.min_cluster_points = recipe.vision.excess_min_cluster_points;
+  es.form_deviation_mm = recipe.vision.form_deviation_mm;
+  es.face = face;
+  es.material_min_mm = box_min(rt.region, 0.0).cast<float>();
+  es.material_max_mm = box_max(rt.region, 0.0).cast<float>();
+  return es;
+}
+
 /// Localisation, per-region ICP and excess on a preprocessed scene (fixture frame, voxelized
 /// at the template resolution, outliers and fixture plane removed, near the part).
 Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const PartTemplate& templ, Cloud&& scene,
@@ -464,7 +479,7 @@ Result<Inspection> localise_and_measure(const config::PartRecipe& recipe, const 
       if (r->fitness < vs.min_fitness)
         rr.error = Error{"vision.low_fitness", "region '" + rr.name + "': fitness " + std::to_string(r->fitness) +
                                                    " below min_fitness " + std::to_string(vs.min_fitness), ErrorKind::wrong_part};
-      rr.excess = measure_region_excess(recipe, rt, transformed(local, T_part_scene), T_part_scene * r->T_scene_template);
+      rr.excess = measure_excess(rt.cloud, transformed(local, r->T_scene_template.inverse()), region_excess_settings(recipe, rt));
     }
     out.regions.push_back(std::move(rr));
   }
@@ -489,18 +504,9 @@ std::optional<Error> check_extent(const Bounds& b) {
 
 ExcessMaterial measure_region_excess(const config::PartRecipe& recipe, const RegionTemplate& rt, const Cloud& scene_part,
                                      const Transform& T_part_region, const FormOffset* face) {
-  ExcessSettings es;
-  es.threshold_mm = rt.region.excess_threshold_mm;
-  es.min_cluster_points = recipe.vision.excess_min_cluster_points;
-  es.form_deviation_mm = recipe.vision.form_deviation_mm;
-  es.face = face;
-  // the material inside the ROI, the casting's face from its context too (a tool reaches
-  // beyond the ROI by its radius)
-  es.material_min_mm = box_min(rt.region, 0.0).cast<float>();
-  es.material_max_mm = box_max(rt.region, 0.0).cast<float>();
   const Transform T_region_part = T_part_region.inverse();
   const Cloud local = crop_box(scene_part, T_region_part, box_min(rt.region, kRegionContextMm), box_max(rt.region, kRegionContextMm));
-  return measure_excess(rt.cloud, transformed(local, T_region_part), es);
+  return measure_excess(rt.cloud, transformed(local, T_region_part), region_excess_settings(recipe, rt, face));
 }
 
 Result<Inspection> inspect(const config::PartRecipe& recipe, const PartTemplate& templ, const Cloud& scan,

@@ -65,6 +65,12 @@ struct FormOffset {
   /// The local offset where the scan saw the face: bilinear between the nodes around (x, y)
   /// that hold one; within `kLocalRadiusMm` beyond the nodes, the nearest edge's; else none.
   [[nodiscard]] std::optional<double> local_at(double x_mm, double y_mm) const;
+  /// Whether (x, y) lies over the nodes (the faces the local fit saw, not the kLocalRadiusMm
+  /// beyond them that local_at() still answers for).
+  [[nodiscard]] bool over_nodes(double x_mm, double y_mm) const {
+    return x_mm >= local_x0 && y_mm >= local_y0 && x_mm <= local_x0 + (local_nx - 1) * local_pitch_mm &&
+           y_mm <= local_y0 + (local_ny - 1) * local_pitch_mm;
+  }
   /// local_at(), else the plane.
   [[nodiscard]] double at(double x_mm, double y_mm) const {
     if (!fitted) return 0.0;

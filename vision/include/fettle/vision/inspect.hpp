@@ -69,7 +69,7 @@ struct Inspection {
 /// T_part_region: the scene within the region's ROI and 10 mm around it (the casting's face
 /// there too), material inside the ROI. `face`: the casting's face to measure from (a
 /// re-grind's: the cycle's first scan's); null: fitted on this scene. inspect() measures every
-/// region with it.
+/// region's excess with the same settings, on the crop it registered the region on.
 ExcessMaterial measure_region_excess(const config::PartRecipe& recipe, const RegionTemplate& rt, const Cloud& scene_part,
                                      const Transform& T_part_region, const FormOffset* face = nullptr);
 
