@@ -30,6 +30,10 @@ constexpr double kValidateTolMm = 0.005;
 constexpr double kTieMm = 1e-9;
 /// tool_penetration_mm: a cylinder's samples this near the decision are searched around.
 constexpr double kRefineMarginMm = 0.5;
+/// plan_straight: a face under a straight flash's pass sloping off the line's normal by up to this
+/// is the casting's face (its form deviation, 0.5 mm over a 90 mm wave, slopes it 1-2 degrees);
+/// steeper is a wall or a boss the pass ends at.
+constexpr double kMaxFaceSlopeRad = 10.0 * std::numbers::pi / 180.0;
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};
@@ -647,8 +651,20 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
     const Vec3 face = above - *d * up;
     if (std::abs(*d) > settings.flash_band_mm + level) return std::nullopt;  // a step: another face
     Transform T = frame_from(face + level * up, up, t);
-    if (tool_penetration_mm(tool, T, in.template_sdf, nullptr, region.allowance_mm) + region.allowance_mm > kBackoffTolMm)
-      return std::nullopt;
+    if (tool_penetration_mm(tool, T, in.template_sdf, nullptr, region.allowance_mm) + region.allowance_mm <= kBackoffTolMm)
+      return T;
+    // The face here slopes off `up` (the casting's own face under the line, not the nominal):
+    // the tool `level` above it along `up` comes nearer it than the level. It is lifted by what
+    // that slope explains for this tool, (R + level)(1/cos - 1) for a ball, R tan + level(1/cos - 1)
+    // for a flat end, and no more: anything nearer is a wall (test
+    // StraightPlan.AFinOnAFaceSlopingOffTheLinesNormalIsGroundEndToEnd).
+    const Vec3 g = sdf_gradient(in.template_sdf, face);
+    if (!(g.norm() > 0.5)) return std::nullopt;
+    const double c = std::clamp(g.normalized().dot(up), 0.0, 1.0);
+    if (c < std::cos(kMaxFaceSlopeRad)) return std::nullopt;
+    const double sec = 1.0 / c, tan = std::sqrt(std::max(0.0, sec * sec - 1.0));
+    const double lift = tool.shape == config::ToolShape::ball ? (R + level) * (sec - 1.0) : R * tan + level * (sec - 1.0);
+    if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, lift + kBackoffTolMm)) return std::nullopt;
     return T;
   };
   const double smid = 0.5 * (smin + smax);
@@ -671,8 +687,10 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
   };
   const double s_lo = reach(-1.0), s_hi = reach(+1.0);
   // Material the tool cannot reach: excess points beyond either end of the pass farther than the
-  // tool reaches at their height (a ball's half-width there, a cylinder's radius).
-  double left_lo = std::numeric_limits<double>::infinity(), left_hi = -left_lo;
+  // tool reaches at their height (a ball's half-width there, a cylinder's radius). Its length is
+  // the stretch it spans before the pass's start plus the stretch after its end.
+  constexpr double kNone = std::numeric_limits<double>::infinity();
+  std::array<std::pair<double, double>, 2> left_span{{{kNone, -kNone}, {kNone, -kNone}}};  // before, after
   for (std::size_t k = 0; k < pts.size(); ++k) {
     const double sp = (pts[k] - frame->base).dot(t);
     if (sp < smin - 1e-9 || sp > smax + 1e-9) continue;
@@ -680,10 +698,12 @@ Result<RegionPlan> plan_straight(const RegionInput& in, const PlannerSettings& s
     if (h <= 0.0) continue;
     const double half = tool.shape == config::ToolShape::ball && h < R ? std::sqrt(h * (2 * R - h)) : R;
     if (sp > s_lo - half && sp < s_hi + half) continue;
-    left_lo = std::min(left_lo, sp), left_hi = std::max(left_hi, sp);
+    auto& [first, last] = left_span[sp >= s_hi + half ? 1 : 0];
+    first = std::min(first, sp), last = std::max(last, sp);
     if (h + lowest > plan.left_mm) plan.left_mm = h + lowest, plan.left_at = pts[k];
   }
-  if (left_hi >= left_lo) plan.left_length_mm = left_hi - left_lo;
+  for (const auto& [first, last] : left_span)
+    if (last >= first) plan.left_length_mm += last - first;
   const auto n = static_cast<int>(std::ceil((s_hi - s_lo) / spacing - 1e-9)) + 1;
   const double feed = region.feed_mm_s, rpm = region.spindle_rpm;
   const double air = std::min(settings.air_speed_mm_s, settings.max_speed_mm_s);

@@ -599,6 +599,48 @@ TEST(StraightPlan, AFinThatRunsIntoAWallIsGroundUpToItAndTheRestIsLeft) {
   ASSERT_TRUE(traj) << traj.error().message;
 }
 
+// A fin on the casting's own face where that face waves 0.5 mm over 90 mm (the realistic form
+// deviation: slopes up to 2 degrees, so 4 degrees off the line's normal where the line is fitted
+// on the opposite slope). The ball `level` above the face along the normal comes nearer the
+// sloping face than the level; the pass lifts it by what the slope explains and grinds the fin
+// end to end, rather than taking the slope for a wall and leaving most of the fin.
+TEST(StraightPlan, AFinOnAFaceSlopingOffTheLinesNormalIsGroundEndToEnd) {
+  auto scene = make_scene();
+  auto& in = scene.inputs[3];
+  const auto wave = [](double x) { return 0.5 * std::sin(2.0 * std::numbers::pi * (x + 50.0) / 90.0); };
+  in.form_deviation_mm = 0.5;
+  in.form_offset_mm = [wave](const Vec3& p) { return wave(p.x()); };
+  in.excess_points_part = testing::straight_fin(-95.0, -5.0, -70.0, 35.0, 2.0, 1.0, 0.5);
+  for (auto& p : in.excess_points_part) p.z() += wave(p.x());
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  EXPECT_EQ(plan->left_length_mm, 0.0);
+  const double R = 6.0, allowance = in.region->allowance_mm;
+  // the ball centre's distance from the casting's face (the wave at y = -70), sampled finely
+  const auto from_face = [&](const Vec3& c) {
+    double d = 1e9;
+    for (double x = c.x() - 8.0; x <= c.x() + 8.0; x += 0.01) d = std::min(d, std::hypot(c.x() - x, c.z() - 35.0 - wave(x)));
+    return d;
+  };
+  double xmin = 1e9, xmax = -1e9;
+  std::size_t last_pass = 0;
+  for (const auto& p : plan->points) {
+    if (p.kind != MoveKind::grind) continue;
+    const Transform T = p.T_base_tool.to_transform();
+    xmin = std::min(xmin, T.translation().x()), xmax = std::max(xmax, T.translation().x());
+    if (p.segment != plan->segments - 1) continue;
+    ++last_pass;
+    // the last pass keeps the allowance from the face, and no more than the back-off's tolerance
+    // beyond it where the face slopes (a tool lifted over a wall would stand farther off)
+    const double d = from_face(T.translation() + R * T.linear().col(2));
+    EXPECT_GE(d, R + allowance - 0.005) << T.translation().transpose();
+    EXPECT_LE(d, R + allowance + 0.02) << T.translation().transpose();
+  }
+  EXPECT_GT(last_pass, 90U);
+  EXPECT_LT(xmin, -95.0 - R + 0.5);  // past both ends by the tool radius
+  EXPECT_GT(xmax, -5.0 + R - 0.5);
+}
+
 RegionPlan line_plan(const std::string& name, double x) {
   RegionPlan p;
   p.region = name;

@@ -122,7 +122,7 @@ struct RegionPlan {
   /// a wall or another feature than the allowance (any height: it is left, never ground into).
   double left_mm = 0.0;
   Vec3 left_at = Vec3::Zero();    ///< ... where (part frame)
-  double left_length_mm = 0.0;    ///< straight flash: the length of the fin so left
+  double left_length_mm = 0.0;    ///< straight flash: the length of the fin so left (both ends together)
 };
 
 // --- the pose equations (Zhu et al. 2022, Eqs. 17–21) ---------------------------------------
