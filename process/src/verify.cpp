@@ -262,7 +262,8 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   // distances of the first scan's points on upward faces within twice the form deviation of the
   // template within 1.5 mm (else 4, else 8), the first scan placed where the camera saw it and
   // then into the re-scan's part frame; a region's plane there is 30-60 mm from the faces it was
-  // fitted to. Where neither, the plane. Each offset is held within twice the form deviation and
+  // fitted to. Where neither, the plane. A region whose face was not fitted (too few samples
+  // around it) is judged by the quartile alone, else against the template. Each offset is held within twice the form deviation and
   // scaled by how much the template's face there points up (the z-derivative of the signed
   // distance: 1 on a top face, 0 on a wall; a body's form moves its faces up and down, not its
   // walls). Docs: docs/planning.md, "verify".
@@ -287,12 +288,14 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   // the distance of a re-scan point from region i's face (else the template): q in the re-scan's
   // frame of the region, p in its part frame
   const auto from_face = [&](const Vec3& q, const Vec3& p, std::size_t i) {
-    if (form[i] == nullptr) return loaded.template_sdf(q);
-    const Vec3 q1 = T_first_region_rescan[i] * p;
-    const auto& f = *form[i];
-    if (const auto local = f.over_nodes(q1.x(), q1.y()) ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
-      const double up = upness(q1);
-      return loaded.template_sdf(q1) - up * held(*local);
+    if (!first) return loaded.template_sdf(q);
+    if (form[i] != nullptr) {
+      const Vec3 q1 = T_first_region_rescan[i] * p;
+      const auto& f = *form[i];
+      if (const auto local = f.over_nodes(q1.x(), q1.y()) ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
+        const double up = upness(q1);
+        return loaded.template_sdf(q1) - up * held(*local);
+      }
     }
     const double d = loaded.template_sdf(q), up = upness(q);
     if (up < 1e-3) return d;
@@ -308,7 +311,7 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       });
       if (near_first.size() >= kFacePoints) return d - up * quantile_of(near_first, kFaceQuantile);
     }
-    return d - up * held(form[i]->plane_at(q.x(), q.y()));
+    return form[i] != nullptr ? d - up * held(form[i]->plane_at(q.x(), q.y())) : d;
   };
   const auto& vs = recipe.verification;
   VerificationResult out;
