@@ -14,6 +14,7 @@
 #include <unordered_map>
 
 #include "fettle/config/roi.hpp"
+#include "fettle/process/footprint.hpp"
 #include "internal.hpp"
 
 namespace fettle::process {
@@ -161,20 +162,6 @@ std::string fmt_mm(double v, int precision) {
   return buf;
 }
 
-/// A tool's volume at one pose, for the swept footprint: a ball (centre, radius) or a cylinder
-/// (axis from `a` to `b`, radius), both grown by the margin.
-struct ToolVolume {
-  Vec3 a, b;
-  double radius = 0.0;
-  std::size_t region = 0;  ///< index into the recipe's regions
-  [[nodiscard]] bool contains(const Vec3& q) const {
-    const Vec3 ab = b - a;
-    const double len2 = ab.squaredNorm();
-    const double f = len2 > 0.0 ? std::clamp((q - a).dot(ab) / len2, 0.0, 1.0) : 0.0;
-    return (q - (a + f * ab)).squaredNorm() <= radius * radius;
-  }
-};
-
 /// Every pose of the trajectories and every 1 mm of the moves between them, air moves too, as
 /// tool volumes in the part frame.
 std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground,
@@ -182,16 +169,7 @@ std::vector<ToolVolume> swept_volumes(const LoadedRecipe& loaded, const std::vec
   std::vector<ToolVolume> out;
   const double grow = loaded.recipe.verification.footprint_margin_mm;
   for_each_tool_pose(loaded, ground, true, [&](std::size_t region, const config::Tool& tool, const Pose& m) {
-    const double R = 0.5 * tool.diameter_mm;
-    const bool ball = tool.shape == config::ToolShape::ball;
-    const Transform T = T_part_base * m.to_transform();
-    const Vec3 tip = T.translation(), z = T.linear().col(2);
-    ToolVolume v;
-    v.region = region;
-    v.a = ball ? Vec3(tip + R * z) : tip;
-    v.b = ball ? v.a : Vec3(tip + std::max(0.0, tool.length_mm) * z);
-    v.radius = R + grow;
-    out.push_back(v);
+    out.push_back(ToolVolume::of(tool, T_part_base * m.to_transform(), grow, region));
   });
   return out;
 }
@@ -204,8 +182,8 @@ class VolumeIndex {
   VolumeIndex(const std::vector<ToolVolume>& volumes, double cell) : volumes_(volumes), keys_{cell} {
     for (std::size_t i = 0; i < volumes.size(); ++i) {
       const auto& v = volumes[i];
-      const auto lo = keys_.coords(v.a.cwiseMin(v.b) - Vec3::Constant(v.radius));
-      const auto hi = keys_.coords(v.a.cwiseMax(v.b) + Vec3::Constant(v.radius));
+      const auto lo = keys_.coords(v.box_min());
+      const auto hi = keys_.coords(v.box_max());
       for (auto z = lo[2]; z <= hi[2]; ++z)
         for (auto y = lo[1]; y <= hi[1]; ++y)
           for (auto x = lo[0]; x <= hi[0]; ++x) cells_[CellKeys::pack(x, y, z)].push_back(i);
