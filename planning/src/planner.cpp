@@ -209,9 +209,17 @@ TrajectoryPoint make_point(const Transform& T_base_part, const Transform& T_part
 
 // --- ring / circle flash ----------------------------------------------------------------------
 
-Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
+/// A flash loop's ring: the parting plane, the ellipse on it and its 2-D basis's origin.
+struct LoopFit {
+  Plane plane;
+  Conic conic;
+  Vec3 origin;
+};
+
+/// The ring fitted to the region's flash (the parting plane through the fin standing out of a
+/// template wall, the ellipse on it), checked to outline a ring in the region's ROI.
+Result<LoopFit> fit_loop(const RegionInput& in, const PlannerSettings& settings) {
   const auto& region = *in.region;
-  const auto& tool = *in.tool;
   RansacOptions plane_opts = settings.ransac;
   plane_opts.inlier_mm = std::max(plane_opts.inlier_mm, 1.0);
   // A parting line's fin stands out of a wall the parting plane cuts: the template surface
@@ -244,7 +252,6 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
     return region_error(region.name, "fit",
                         "only " + std::to_string(pts.size()) +
                             " excess points stand out of a template wall on the parting plane: no flash to fit a ring to");
-  plan.plane = *plane;
   const Vec3 w = plane->normal;
   Vec3 centroid = Vec3::Zero();
   for (const auto& p : pts) centroid += p;
@@ -262,7 +269,6 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
     return region_error(region.name, "fit",
                         "no ellipse could be fitted to the flash points projected onto the parting plane; "
                         "check the region's ROI and the scan");
-  plan.conic = *conic;
   const auto geom = ellipse_geometry(*conic);
   if (!geom) return region_error(region.name, "fit", "the fitted conic is not an ellipse");
   // A ring fitted to a short arc is ill-posed (a re-grind's leftover pieces, a region the camera
@@ -298,6 +304,29 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
                               fmt(geom->semi_minor) + " mm, part frame) does not lie in the region's ROI; "
                               "check the ROI and the scan");
   }
+  return LoopFit{*plane, *conic, origin};
+}
+
+Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings& settings, RegionPlan plan) {
+  const auto& region = *in.region;
+  const auto& tool = *in.tool;
+  // A re-grind follows the first plan's ring (RegionInput::first): the fin's leftover pieces on
+  // a short arc fit no ring, or a wrong one. The contact points come from the template's wall
+  // inward of the ring either way.
+  const bool again = in.first != nullptr && in.first->type == region.type && in.first->conic.is_ellipse();
+  auto fit = again ? Result<LoopFit>(LoopFit{in.first->plane, in.first->conic, in.first->conic_origin})
+                   : fit_loop(in, settings);
+  if (!fit) return fit.error();
+  plan.plane = fit->plane;
+  plan.conic = fit->conic;
+  plan.conic_origin = fit->origin;
+  const Vec3 w = plan.plane.normal;
+  const Vec3 origin = plan.conic_origin;
+  const Vec3 e1 = any_perpendicular(w);
+  const Vec3 e2 = w.cross(e1);
+  const Conic& conic = plan.conic;
+  const auto geom = ellipse_geometry(conic);
+  if (!geom) return region_error(region.name, "fit", "the fitted conic is not an ellipse");
 
   // arc length along the ellipse, then contact points at the configured spacing (≤ 1 mm)
   const double spacing = std::clamp(region.point_spacing_mm, 0.05, 1.0);
@@ -323,7 +352,7 @@ Result<RegionPlan> plan_flash_loop(const RegionInput& in, const PlannerSettings&
     const double f = (s - cum[k - 1]) / std::max(1e-12, cum[k] - cum[k - 1]);
     const double t = 2 * std::numbers::pi * (static_cast<double>(k) - 1 + f) / dense;
     const Eigen::Vector2d q = geom->point(t);
-    Eigen::Vector2d g = conic->gradient(q);
+    Eigen::Vector2d g = conic.gradient(q);
     if ((q - geom->center).dot(g) < 0) g = -g;  // outward
     const Vec3 P0 = origin + q.x() * e1 + q.y() * e2;
     const Vec3 n = (g.x() * e1 + g.y() * e2).normalized();

@@ -190,6 +190,9 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
       const auto form = rr.excess.form;  // region template frame ~ part frame (within the region's fit)
       in.form_offset_mm = [form](const Vec3& p) { return form.at(p.x(), p.y()); };
     }
+    if (options.before_plans != nullptr)
+      for (const auto& first : *options.before_plans)
+        if (first.region == region.name) in.first = &first;
     inputs.push_back(std::move(in));
   }
 
@@ -230,6 +233,7 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     return step_error("validate", st.error());
   }
   out.timings.push_back({"plan", ms_since(t_plan)});
+  out.plans = std::move(plans);
 
   // Preview: the located scan in the base frame, coloured by height above the template.
   const auto& ins_ref = out.inspection;

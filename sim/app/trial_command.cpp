@@ -590,6 +590,7 @@ int trial(const Args& a) {
         ro.placement_bound_mm2 = rc.placement.bound_mm2;
       }
       ro.before = &out->inspection;
+      ro.before_plans = &out->plans;
       std::fprintf(stderr, ", re-grind");
       json rg;
       rg["regions"] = ro.regions;

@@ -362,6 +362,33 @@ TEST(RingPlan, AShortArcOrARingOutsideTheRoiIsRefusedWithTheReason) {
   EXPECT_NE(outside.error().message.find("does not lie in the region's ROI"), std::string::npos) << outside.error().message;
 }
 
+// A re-grind's leftover of the fin, 70 degrees of it, fits no ring; the re-grind grinds along the
+// first plan's ring (fitted to the whole fin), its contact points on the template's wall as the
+// first plan's were.
+TEST(RingPlan, AReGrindFollowsTheFirstPlansRing) {
+  auto scene = make_scene();
+  const auto first = plan_region(scene.inputs[0], PlannerSettings{});
+  ASSERT_TRUE(first) << first.error().message;
+  RegionInput arc = scene.inputs[0];
+  std::vector<Vec3> kept;
+  for (const auto& p : arc.excess_points_part)
+    if (std::atan2(p.y(), p.x()) > 0.0 && std::atan2(p.y(), p.x()) < 1.2) kept.push_back(p);
+  arc.excess_points_part = kept;
+  ASSERT_FALSE(plan_region(arc, PlannerSettings{}));  // on its own: too short an arc
+  arc.first = &first.value();
+  const auto again = plan_region(arc, PlannerSettings{});
+  ASSERT_TRUE(again) << again.error().message;
+  ASSERT_EQ(again->points.size(), first->points.size());
+  for (std::size_t i = 0; i < again->points.size(); ++i)
+    EXPECT_LT((again->points[i].T_base_tool.position_mm - first->points[i].T_base_tool.position_mm).norm(), 1e-9) << i;
+  EXPECT_LT((again->conic_origin - first->conic_origin).norm(), 1e-12);
+  // another region type's plan is no ring to follow
+  const auto riser = plan_region(scene.inputs[1], PlannerSettings{});
+  ASSERT_TRUE(riser) << riser.error().message;
+  arc.first = &riser.value();
+  EXPECT_FALSE(plan_region(arc, PlannerSettings{}));
+}
+
 // A camera that sees 240 degrees of the fin, and excess elsewhere in the ROI (the body's form
 // deviation read as material, 15 mm below the parting plane, on the side the fin is not seen):
 // the ring is fitted to the flash on the parting plane only. With the stray points in the

@@ -438,6 +438,7 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
                 rc.placement.describe());
     }
     po.before = c.processed ? &c.processed->inspection : nullptr;  // the casting's faces as first seen
+    po.before_plans = c.processed ? &c.processed->plans : nullptr;  // a ring's fit on the whole fin
     log->info("cycle {}: re-grind of {} region(s): {}", c.summary.id, po.regions.size(), fmt::join(po.regions, ", "));
     c.first_verification = std::move(v);
     std::string not_planned;

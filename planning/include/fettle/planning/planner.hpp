@@ -51,6 +51,8 @@ class SignedDistance {
   NearFn near_;
 };
 
+struct RegionPlan;
+
 /// Everything the planner needs for one region (the daemon adapts the vision output to this).
 struct RegionInput {
   const config::Region* region = nullptr;
@@ -73,6 +75,11 @@ struct RegionInput {
   /// excess the tool cannot reach that is no higher than this over the template may be the
   /// casting's own face, and is left and reported like PlannerSettings::leave_unreachable_mm's.
   double form_deviation_mm = 0.0;
+  /// A re-grind: the region's plan in the cycle's first grind (part frame; nullptr otherwise). A
+  /// ring or circle flash is ground again along that plan's ring and parting plane, fitted to
+  /// the whole fin: what a grind leaves of a fin is pieces on a short arc (110 of 360 degrees)
+  /// that fit no ring, or a wrong one (test RingPlan.AReGrindFollowsTheFirstPlansRing).
+  const RegionPlan* first = nullptr;
 };
 
 /// Planner limits and tunables (safety limits come from the cell's [safety]).
@@ -113,6 +120,8 @@ struct RegionPlan {
   // diagnostics
   Plane plane;                    ///< ring/circle: fitted parting plane (part frame)
   Conic conic;                    ///< ring/circle: fitted ellipse in the plane's 2-D basis
+  /// ring/circle: that basis's origin on the plane (its axes follow from the plane's normal alone)
+  Vec3 conic_origin = Vec3::Zero();
   Line line;                      ///< straight flash: fitted line (part frame)
   double max_excess_mm = 0.0;     ///< riser/straight: D, largest height above the template
   std::vector<double> layer_levels_mm;  ///< riser/straight: heights above the template per layer/pass

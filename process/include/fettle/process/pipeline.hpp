@@ -152,6 +152,9 @@ struct ProcessOptions {
   /// casting's face as that scan saw it: on the ground casting, a stub the passes left within
   /// the form deviation fits as the face, and the re-grind would find nothing to grind.
   const vision::Inspection* before = nullptr;
+  /// A re-grind: the cycle's first plans (ProcessOutput::plans). A ring or circle flash is
+  /// ground again along its first plan's ring (planning::RegionInput::first).
+  const std::vector<planning::RegionPlan>* before_plans = nullptr;
 };
 
 struct ProcessOutput {
@@ -160,6 +163,7 @@ struct ProcessOutput {
   Trajectory trajectory;           ///< validated; empty points when nothing needs grinding
   std::vector<StepTiming> timings;  ///< per step, ms
   std::vector<RegionMetrics> regions;
+  std::vector<planning::RegionPlan> plans;  ///< the regions' plans as planned (part frame diagnostics)
   std::vector<planning::PreviewPoint> preview;  ///< scan (base frame) coloured by excess, for preview.png
   double total_ms = 0.0;
 };
