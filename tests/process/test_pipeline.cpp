@@ -304,7 +304,9 @@ TEST_F(Pipeline, VerifyFindsNoGougeWhereAnExactlyGroundCastingWasGround) {
   casting.remove_all_material();
   const auto r = verify(*loaded_, cell_, views_of(scanner.capture_all(casting)), {planned->trajectory});
   ASSERT_TRUE(r) << r.error().message;
-  EXPECT_GT(r->footprint_points, 1000U);
+  // the footprint beyond every ROI (the tools' solids grown by 2 mm: the leads, the ball's ends
+  // of pass, the disc's side) holds a few hundred of the small scanner's points
+  EXPECT_GT(r->footprint_points, 200U);
   EXPECT_FALSE(r->worst_gouge.has_value()) << r->worst_gouge->describe();
   EXPECT_LT(r->deepest_below_mm, loaded_->recipe.verification.gouge_depth_mm);
   EXPECT_EQ(r->verdict, Verdict::ok);
