@@ -14,61 +14,19 @@
 #include <nlohmann/json.hpp>
 
 #include "fettle/core/atomic_file.hpp"
+#include "fettle/process/footprint.hpp"
 #include "internal.hpp"
 
 namespace fettle::process {
 
 namespace {
 
-/// One tool pose of the commanded paths: a ball (centre, radius) or a capped cylinder (its end
-/// face centre `tip`, axis towards the flange, radius, length).
-struct ToolPose {
-  Vec3 tip, axis;
-  double radius = 0.0, length = 0.0;
-  bool ball = false;
-
-  /// Signed distance of q to the tool's surface (< 0 inside) and the surface's outward normal
-  /// at the nearest place.
-  [[nodiscard]] double distance(const Vec3& q, Vec3& normal) const {
-    if (ball) {
-      const Vec3 d = q - tip;
-      const double n = d.norm();
-      normal = n > 1e-12 ? Vec3(d / n) : Vec3(-axis);
-      return n - radius;
-    }
-    const Vec3 d = q - tip;
-    const double s = axis.dot(d);
-    const Vec3 radial = d - s * axis;
-    const double rho = radial.norm();
-    const Vec3 rdir = rho > 1e-12 ? Vec3(radial / rho) : Vec3::Zero();
-    const double dx = rho - radius;
-    const double half = 0.5 * length;
-    const double dz = std::abs(s - half) - half;
-    const Vec3 zdir = s < half ? Vec3(-axis) : axis;
-    if (dx > 0.0 && dz > 0.0) {
-      const double out = std::hypot(dx, dz);
-      normal = (dx * rdir + dz * zdir) / out;
-      return out;
-    }
-    if (dx > dz) {
-      normal = rdir;
-      return dx;
-    }
-    normal = zdir;
-    return dz;
-  }
-};
-
 /// Tool poses by the grid cells their bounding boxes, grown by `grow`, overlap.
 class ToolIndex {
  public:
-  ToolIndex(std::vector<ToolPose> poses, double cell, double grow) : poses_(std::move(poses)), keys_{cell} {
+  ToolIndex(std::vector<ToolSolid> poses, double cell, double grow) : poses_(std::move(poses)), keys_{cell} {
     for (std::size_t i = 0; i < poses_.size(); ++i) {
-      const auto& t = poses_[i];
-      const Vec3 a = t.tip, b = t.ball ? t.tip : Vec3(t.tip + t.length * t.axis);
-      const Vec3 lo = a.cwiseMin(b) - Vec3::Constant(t.radius + grow);
-      const Vec3 hi = a.cwiseMax(b) + Vec3::Constant(t.radius + grow);
-      const auto l = keys_.coords(lo), h = keys_.coords(hi);
+      const auto l = keys_.coords(poses_[i].box_min(grow)), h = keys_.coords(poses_[i].box_max(grow));
       for (auto z = l[2]; z <= h[2]; ++z)
         for (auto y = l[1]; y <= h[1]; ++y)
           for (auto x = l[0]; x <= h[0]; ++x) cells_[CellKeys::pack(x, y, z)].push_back(i);
@@ -90,25 +48,18 @@ class ToolIndex {
   [[nodiscard]] bool empty() const { return poses_.empty(); }
 
  private:
-  std::vector<ToolPose> poses_;
+  std::vector<ToolSolid> poses_;
   CellKeys keys_;
   std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
 };
 
 /// The commanded tool poses that cut: every pose and move sample but the air moves (cone tools
 /// are not measured, the header says so).
-std::vector<ToolPose> commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground) {
-  std::vector<ToolPose> out;
+std::vector<ToolSolid> commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground) {
+  std::vector<ToolSolid> out;
   for_each_tool_pose(loaded, ground, false, [&](std::size_t, const config::Tool& tool, const Pose& m) {
     if (tool.shape == config::ToolShape::cone) return;
-    const Transform T = m.to_transform();
-    ToolPose t;
-    t.axis = T.linear().col(2);
-    t.radius = 0.5 * tool.diameter_mm;
-    t.ball = tool.shape == config::ToolShape::ball;
-    t.tip = t.ball ? Vec3(T.translation() + t.radius * t.axis) : Vec3(T.translation());
-    t.length = std::max(0.0, tool.length_mm);
-    out.push_back(t);
+    out.push_back(ToolSolid::of(tool, m.to_transform()));
   });
   return out;
 }
