@@ -96,6 +96,13 @@ void CellErrors::add_correlated_depth(RangeImageF32& range) const {
                                                               static_cast<double>(k / range.width)));
 }
 
+double CellErrors::wheel_wear_mm_per_cm3(const std::string& tool) const {
+  std::uint64_t h = 1469598103934665603ULL;  // FNV-1a of the name: the draw does not depend on the tools' order
+  for (const unsigned char ch : tool) h = (h ^ ch) * 1099511628211ULL;
+  Rng rng(cell_seed, kSalt, h);
+  return budget.wheel_wear_mm_per_cm3 * (1.0 + budget.wheel_wear_spread_pct / 100.0 * rng.uniform(-1.0, 1.0));
+}
+
 nlohmann::json CellErrors::to_json() const {
   const auto& b = budget;
   const Eigen::AngleAxisd aa(T_nominal_true.linear());
@@ -108,7 +115,8 @@ nlohmann::json CellErrors::to_json() const {
             {"path_bias_mm", b.path_bias_mm}, {"tcp_length_mm", b.tcp_length_mm}, {"depth_noise_mm", b.depth_noise_mm},
             {"depth_correlated_mm", b.depth_correlated_mm}, {"depth_correlation_px", b.depth_correlation_px},
             {"form_deviation_mm", b.form_deviation_mm ? nlohmann::json(*b.form_deviation_mm) : nlohmann::json(nullptr)},
-            {"wheel_wear_mm_per_cm3", b.wheel_wear_mm_per_cm3}}},
+            {"wheel_wear_mm_per_cm3", b.wheel_wear_mm_per_cm3},
+            {"wheel_wear_spread_pct", b.wheel_wear_spread_pct}}},
           {"drawn",
            {{"hand_eye_translation_mm",
              {T_nominal_true.translation().x(), T_nominal_true.translation().y(), T_nominal_true.translation().z()}},

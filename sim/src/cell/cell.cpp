@@ -396,7 +396,7 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
         go.tool.diameter_mm = std::max(0.1, go.tool.diameter_mm - 2.0 * worn_mm[go.tool.name]);
       }
       auto r = sim::grind(*casting, seg, go, limits);
-      if (r && drawn) worn_mm[go.tool.name] += drawn->budget.wheel_wear_mm_per_cm3 * r->removed_mm3() / 1000.0;
+      if (r && drawn) worn_mm[go.tool.name] += drawn->wheel_wear_mm_per_cm3(go.tool.name) * r->removed_mm3() / 1000.0;
       if (!r) event("grinding segment " + std::to_string(t.points[i].segment) + " refused: " + r.error().message);
       else
         for (const auto& g : r->gouges)

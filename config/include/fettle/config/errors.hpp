@@ -30,6 +30,10 @@ struct ErrorBudget {
   double interreflection_mm = 0.0;      ///< extra depth error in concave corners (not modelled yet: refused)
   std::optional<double> form_deviation_mm;  ///< the body's smooth form deviation; replaces the recipe's
   double wheel_wear_mm_per_cm3 = 0.0;   ///< a tool's radius shrinks this much per cm3 it removed; the cell is not told
+  /// Each wheel's true rate is off wheel_wear_mm_per_cm3 by up to this share (uniform, either
+  /// sign, drawn once per cell and tool): one wheel is not another, and a rate the recipe states
+  /// is its maker's, not this wheel's.
+  double wheel_wear_spread_pct = 0.0;
   std::filesystem::path source;         ///< the file read (absolute)
 };
 

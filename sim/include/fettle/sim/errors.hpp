@@ -37,6 +37,9 @@ struct CellErrors {
   [[nodiscard]] double correlated_depth_mm(double u, double v) const;
   /// Adds the smooth depth error to every valid pixel of a range image (Z, mm).
   void add_correlated_depth(RangeImageF32& range) const;
+  /// The true wear rate of the cell's wheel `tool` (mm of radius per cm3 removed): the budget's
+  /// rate off by up to its spread, the same for every casting of the run.
+  [[nodiscard]] double wheel_wear_mm_per_cm3(const std::string& tool) const;
   /// Everything drawn, for the truth JSON.
   [[nodiscard]] nlohmann::json to_json() const;
 };
