@@ -165,6 +165,9 @@ void read_part(TableReader& root, PartRecipe& part) {
         t.number("length_mm", tool.length_mm, {0.1, 500.0});
         if (tool.shape == ToolShape::cone) t.number("cone_angle_deg", tool.cone_angle_deg, {1.0, 89.0}, Need::required);
         t.vec3("tcp_mm", tool.tcp_mm, {-2000.0, 2000.0});
+        t.number("wear_mm_per_cm3", tool.wear_mm_per_cm3, {0.0, 1.0});
+        t.number("wear_tolerance_pct", tool.wear_tolerance_pct, {0.0, 100.0});
+        t.number("max_wear_mm", tool.max_wear_mm, {0.0, 0.5 * tool.diameter_mm});
         if (!tool.name.empty() && !tool_names.insert(tool.name).second)
           t.error("name", "tool \"" + tool.name + "\" is defined twice");
         part.tools.push_back(tool);

@@ -34,6 +34,9 @@ constexpr double kRefineMarginMm = 0.5;
 /// is the casting's face (its form deviation, 0.5 mm over a 90 mm wave, slopes it 1-2 degrees);
 /// steeper is a wall or a boss the pass ends at.
 constexpr double kMaxFaceSlopeRad = 10.0 * std::numbers::pi / 180.0;
+/// A riser's rows overlap by at least a fifth of the tool's diameter: the path's noise and a
+/// wheel worn a little more than the cell predicts leave no ridge between two rows.
+constexpr double kMaxStepoverShare = 0.8;
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};
@@ -518,7 +521,11 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
     amin = std::min(amin, a), amax = std::max(amax, a), bmin = std::min(bmin, b), bmax = std::max(bmax, b);
   }
   amin -= region.margin_mm, amax += region.margin_mm, bmin -= region.margin_mm, bmax += region.margin_mm;
-  const double step = std::max(0.1, region.stepover_mm);
+  // Rows at most kMaxStepoverShare of the tool's diameter apart: a worn wheel (ProcessOptions::
+  // tool_wear_mm) narrower than the recipe's stepover would leave a ridge between two rows
+  // (test RiserPlan.AWornWheelsRowsCloseUp).
+  const double narrowest = std::max(0.05, tool_radius(tool) - std::max(0.0, in.tool_worn_more_mm));
+  const double step = std::max(0.1, std::min(region.stepover_mm, kMaxStepoverShare * 2.0 * narrowest));
   const double spacing = std::clamp(region.point_spacing_mm, 0.05, step);
   const auto rows = static_cast<int>(std::ceil((bmax - bmin) / step - 1e-9)) + 1;
   const auto cols = static_cast<int>(std::ceil((amax - amin) / spacing - 1e-9)) + 1;

@@ -24,7 +24,8 @@ namespace {
 /// Tool poses by the grid cells their bounding boxes, grown by `grow`, overlap.
 class ToolIndex {
  public:
-  ToolIndex(std::vector<ToolSolid> poses, double cell, double grow) : poses_(std::move(poses)), keys_{cell} {
+  ToolIndex(std::vector<ToolSolid> poses, std::vector<std::size_t> tools, double cell, double grow)
+      : poses_(std::move(poses)), tools_(std::move(tools)), keys_{cell} {
     for (std::size_t i = 0; i < poses_.size(); ++i) {
       const auto l = keys_.coords(poses_[i].box_min(grow)), h = keys_.coords(poses_[i].box_max(grow));
       for (auto z = l[2]; z <= h[2]; ++z)
@@ -32,16 +33,23 @@ class ToolIndex {
           for (auto x = l[0]; x <= h[0]; ++x) cells_[CellKeys::pack(x, y, z)].push_back(i);
     }
   }
-  /// The smallest signed distance of q to any pose's tool, with that tool's normal; false when
-  /// no pose is near.
-  bool nearest(const Vec3& q, double& sd, Vec3& normal) const {
+  /// The smallest signed distance of q to any pose's tool, with that tool's normal, the share of
+  /// the normal across the tool's axis (1 on a ball and a cylinder's side, 0 on its flat end:
+  /// how much of a smaller radius shows there) and the tool's index; false when no pose is near.
+  bool nearest(const Vec3& q, double& sd, Vec3& normal, double& radial, std::size_t& tool) const {
     const auto it = cells_.find(keys_.key(q));
     if (it == cells_.end()) return false;
     bool found = false;
     Vec3 n;
+    std::size_t best = 0;
     for (auto i : it->second) {
       const double d = poses_[i].distance(q, n);
-      if (!found || d < sd) sd = d, normal = n, found = true;
+      if (!found || d < sd) sd = d, normal = n, best = i, found = true;
+    }
+    if (found) {
+      const auto& p = poses_[best];
+      radial = p.ball ? 1.0 : std::clamp((normal - normal.dot(p.axis) * p.axis).norm(), 0.0, 1.0);
+      tool = tools_[best];
     }
     return found;
   }
@@ -49,19 +57,27 @@ class ToolIndex {
 
  private:
   std::vector<ToolSolid> poses_;
+  std::vector<std::size_t> tools_;  // per pose: index into the recipe's tools
   CellKeys keys_;
   std::unordered_map<std::int64_t, std::vector<std::size_t>> cells_;
 };
 
-/// The commanded tool poses that cut: every pose and move sample but the air moves (cone tools
-/// are not measured, the header says so).
-std::vector<ToolSolid> commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground) {
-  std::vector<ToolSolid> out;
+/// The commanded tool poses that cut, with the wear they were commanded with: every pose and
+/// move sample but the air moves (cone tools are not measured, the header says so).
+ToolIndex commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajectory>& ground, const ToolWearMm& wear,
+                          double grow) {
+  const auto& tools = loaded.recipe.tools;
+  std::vector<config::Tool> worn;
+  for (const auto& t : tools) worn.push_back(worn_tool(t, wear));
+  std::vector<ToolSolid> poses;
+  std::vector<std::size_t> index;
   for_each_tool_pose(loaded, ground, false, [&](std::size_t, const config::Tool& tool, const Pose& m) {
     if (tool.shape == config::ToolShape::cone) return;
-    out.push_back(ToolSolid::of(tool, m.to_transform()));
+    const auto k = static_cast<std::size_t>(&tool - tools.data());
+    poses.push_back(ToolSolid::of(worn[k], m.to_transform()));
+    index.push_back(k);
   });
-  return out;
+  return ToolIndex(std::move(poses), std::move(index), 8.0, grow);
 }
 
 /// The first scan's surface as seen from above: the highest point of each base-frame x-y cell.
@@ -71,19 +87,29 @@ class HeightColumns {
  public:
   HeightColumns(const vision::Inspection& before, double cell) : cell_(cell) {
     const Eigen::Isometry3f T = before.whole.T_scene_template.cast<float>();
-    for (const auto& p : before.scene_part.points) {
-      const Eigen::Vector3f b = T * p;
-      const auto k = key(b.x(), b.y());
-      const auto it = top_.find(k);
-      if (it == top_.end()) top_.emplace(k, b.z());
-      else it->second = std::max(it->second, b.z());
+    for (const auto& p : before.scene_part.points) add((T * p).cast<double>());
+  }
+  /// No scan: columns from add().
+  HeightColumns(std::nullptr_t, double cell) : cell_(cell) {}
+  void add(const Vec3& b) {
+    const auto k = key(b.x(), b.y());
+    const auto it = top_.find(k);
+    if (it == top_.end()) {
+      top_.emplace(k, Top{static_cast<float>(b.z()), b});
+    } else if (b.z() > it->second.z) {
+      it->second = Top{static_cast<float>(b.z()), b};
     }
+  }
+  /// Each column's highest point.
+  template <class Fn>
+  void for_each(Fn&& fn) const {
+    for (const auto& [k, t] : top_) fn(t.at);
   }
   /// How far the first scan's surface stood above q (nullopt: the first scan saw nothing there).
   [[nodiscard]] std::optional<double> removed_above(const Vec3& q) const {
     const auto it = top_.find(key(q.x(), q.y()));
     if (it == top_.end()) return std::nullopt;
-    return static_cast<double>(it->second) - q.z();
+    return static_cast<double>(it->second.z) - q.z();
   }
   [[nodiscard]] bool empty() const { return top_.empty(); }
 
@@ -93,13 +119,27 @@ class HeightColumns {
     const auto cy = static_cast<std::int64_t>(std::floor(y / cell_));
     return (cx << 32) ^ (cy & 0xFFFFFFFF);
   }
+  struct Top {
+    float z;
+    Vec3 at;
+  };
   double cell_;
-  std::unordered_map<std::int64_t, float> top_;
+  std::unordered_map<std::int64_t, Top> top_;
 };
+
+/// An unknown counts as observed when this share of it lies in the span the fit solved.
+constexpr double kObservedShare = 0.9;
+/// A wheel's own rate replaces its stated one from this many measurements of its radius on.
+constexpr std::size_t kMinWearMeasurements = 3;
+/// A tool's radius is fitted apart from the offset when this share of its column's information
+/// is left once the offset is fitted (measure_cut_offset()).
+constexpr double kSeparableShare = 0.3;
 
 struct Sample {
   double sd;
   Vec3 n;
+  double radial;     // share of n across the tool's axis
+  std::size_t tool;  // index into the recipe's tools
 };
 
 std::string fmt3(const Vec3& v, int precision) {
@@ -119,8 +159,8 @@ std::string CutOffset::describe() const {
 
 Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::Inspection& before,
                                      const std::vector<Trajectory>& ground, const VerificationResult& after,
-                                     const CutOffsetSettings& settings) {
-  const ToolIndex tools(commanded_tools(loaded, ground), 8.0, settings.band_mm);
+                                     const ToolWearMm& wear, const CutOffsetSettings& settings) {
+  const ToolIndex tools = commanded_tools(loaded, ground, wear, settings.band_mm);
   const HeightColumns first_scan(before, settings.column_mm);
   if (tools.empty() || first_scan.empty())
     return Error{"compensation.no_cut", "no cut to measure: " +
@@ -136,7 +176,7 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
       const auto removed = first_scan.removed_above(q);
       if (!removed || *removed < settings.removed_min_mm) continue;
       Sample s{};
-      if (!tools.nearest(q, s.sd, s.n) || std::abs(s.sd) > settings.band_mm) continue;
+      if (!tools.nearest(q, s.sd, s.n, s.radial, s.tool) || std::abs(s.sd) > settings.band_mm) continue;
       samples.push_back(s);
     }
   }
@@ -144,55 +184,114 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(samples.size()) +
                                             " re-scanned points near the commanded tool surface where material was "
                                             "removed (at least " + std::to_string(settings.min_points) + ")"};
-  // Robust least squares sd_i = n_i . b: points off the fit by more than a shrinking gate are
+  // The unknowns: the offset b (3) and one radius loss per tool whose radius the cut surfaces
+  // show apart from b (a column each): what is left of the tool's column's information once b
+  // is fitted must be at least kSeparableShare of it. A groove's bottom, cut by a ball, looks
+  // up: its radius and the offset's height move it alike, and the column is left out (the
+  // offset takes it); a disc's side round a ring or a ball beside a flat end's face is kept.
+  const auto& recipe_tools = loaded.recipe.tools;
+  std::vector<int> column(recipe_tools.size(), -1);
+  int n = 3;
+  const auto renumber = [&](const std::vector<bool>& keep) {
+    n = 3;
+    for (std::size_t t = 0; t < recipe_tools.size(); ++t) column[t] = keep[t] ? n++ : -1;
+  };
+  {
+    std::vector<double> radial_weight(recipe_tools.size(), 0.0);
+    for (const auto& s : samples) radial_weight[s.tool] += s.radial * s.radial;
+    std::vector<bool> keep(recipe_tools.size());
+    for (std::size_t t = 0; t < recipe_tools.size(); ++t)
+      keep[t] = radial_weight[t] >= static_cast<double>(settings.min_points);
+    renumber(keep);
+    Eigen::MatrixXd N = Eigen::MatrixXd::Zero(n, n);
+    for (const auto& s : samples) {
+      Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
+      a.head<3>() = s.n;
+      if (column[s.tool] >= 0) a(column[s.tool]) = -s.radial;
+      N.noalias() += a * a.transpose();
+    }
+    const double ridge = 1e-6 * std::max(1.0, N.trace() / n);
+    const Eigen::MatrixXd inv = (N + ridge * Eigen::MatrixXd::Identity(n, n)).ldlt().solve(Eigen::MatrixXd::Identity(n, n));
+    for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
+      const int c = column[t];
+      if (c >= 0 && !(1.0 / inv(c, c) >= kSeparableShare * N(c, c))) keep[t] = false;
+    }
+    renumber(keep);
+  }
+  const auto row = [&](const Sample& s) {
+    Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
+    a.head<3>() = s.n;
+    if (column[s.tool] >= 0) a(column[s.tool]) = -s.radial;  // a smaller wheel cuts less far out
+    return a;
+  };
+  // Robust least squares sd_i = a_i . x: points off the fit by more than a shrinking gate are
   // left out (material the tool did not reach, a neighbouring surface it passed by), the rest
-  // weighted by Huber's rule.
-  CutOffset out;
-  Vec3 b = Vec3::Zero();
-  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();    // projector onto the observed directions
-  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();  // of b
+  // weighted by Huber's rule. Only the directions of x the samples fix with at least min_points'
+  // weight are solved for; an unknown counts as observed when it lies in their span (a ball's
+  // radius alone against a cut that looks up is not told apart from the offset's height).
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n);
+  Eigen::MatrixXd S = Eigen::MatrixXd::Zero(n, n);    // projector onto the solved directions
+  Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(n, n);  // of x
   double sigma = 0.0;
   std::size_t used = 0;
+  std::vector<std::size_t> tool_points(recipe_tools.size(), 0);
   constexpr double kHuberMm = 0.05;
   for (const double gate : {settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15}) {
-    Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
-    Vec3 g = Vec3::Zero();
+    Eigen::MatrixXd N = Eigen::MatrixXd::Zero(n, n);
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
     double e2 = 0.0, wsum = 0.0;
     used = 0;
+    std::fill(tool_points.begin(), tool_points.end(), 0);
     for (const auto& s : samples) {
-      const double e = s.sd - s.n.dot(b);
+      const Eigen::VectorXd a = row(s);
+      const double e = s.sd - a.dot(x);
       if (std::abs(e) > gate) continue;
       const double w = std::abs(e) <= kHuberMm ? 1.0 : kHuberMm / std::abs(e);
-      N += w * s.n * s.n.transpose();
-      g += w * s.sd * s.n;
+      N.noalias() += w * a * a.transpose();
+      g += w * s.sd * a;
       e2 += w * e * e;
       wsum += w;
       ++used;
+      if (s.radial > 0.5) ++tool_points[s.tool];
     }
     if (used < settings.min_points) break;
     sigma = std::sqrt(e2 / wsum);
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(N);
-    b.setZero();
-    P.setZero();
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(N);
+    x.setZero();
+    S.setZero();
     cov.setZero();
-    for (int k = 0; k < 3; ++k) {
+    for (int k = 0; k < n; ++k) {
       const double lambda = eig.eigenvalues()(k);
       if (!(lambda >= static_cast<double>(settings.min_points))) continue;
-      const Vec3 v = eig.eigenvectors().col(k);
-      b += (v.dot(g) / lambda) * v;
-      P += v * v.transpose();
+      const Eigen::VectorXd v = eig.eigenvectors().col(k);
+      x += (v.dot(g) / lambda) * v;
+      S += v * v.transpose();
       cov += (sigma * sigma / lambda) * v * v.transpose();
     }
+  }
+  // the offset's observed directions: those of b-space the solved span holds whole
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+  {
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(S.topLeftCorner<3, 3>());
+    for (int k = 0; k < 3; ++k)
+      if (eig.eigenvalues()(k) >= kObservedShare) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
   }
   if (used < settings.min_points || P.trace() < 0.5)
     return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(used) +
                                             " re-scanned points lie on the commanded tool surface (at least " +
                                             std::to_string(settings.min_points) + " along one direction)"};
-  out.offset_mm = b;
+  CutOffset out;
+  out.offset_mm = P * x.head<3>();
   out.observed = P;
-  out.std_mm = cov.diagonal().cwiseMax(0.0).cwiseSqrt();
+  const Eigen::Matrix3d cov_b = P * cov.topLeftCorner<3, 3>() * P;
+  out.std_mm = cov_b.diagonal().cwiseMax(0.0).cwiseSqrt();
   out.points = used;
   out.rms_mm = sigma;
+  for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
+    const int c = column[t];
+    if (c < 0 || S(c, c) < kObservedShare) continue;
+    out.tools[recipe_tools[t].name] = ToolWearMeasured{x(c), std::sqrt(std::max(0.0, cov(c, c))), tool_points[t]};
+  }
   return out;
 }
 
@@ -238,6 +337,123 @@ Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSecti
   if (const double n = bias_mm.norm(); n > settings.max_offset_mm && n > 0.0) bias_mm *= settings.max_offset_mm / n;
   ++updates;
   return bias_mm - before;
+}
+
+std::map<std::string, double> removed_cm3(const LoadedRecipe& loaded, const ProcessOutput& processed) {
+  std::map<std::string, double> out;
+  for (const auto& plan : processed.plans) {
+    if (plan.points.empty()) continue;
+    const auto& regions = loaded.recipe.regions;
+    const auto r = std::find_if(regions.begin(), regions.end(), [&](const config::Region& x) { return x.name == plan.region; });
+    const auto m = std::find_if(processed.regions.begin(), processed.regions.end(),
+                                [&](const RegionMetrics& x) { return x.name == plan.region; });
+    if (r == regions.end() || m == processed.regions.end()) continue;
+    out[r->tool] += m->excess_volume_mm3 / 1000.0;
+  }
+  return out;
+}
+
+std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& loaded, const vision::Inspection& before,
+                                                  const VerificationResult& after, const CutOffsetSettings& settings) {
+  std::map<std::string, double> out;
+  const HeightColumns first_scan(before, settings.column_mm);
+  if (first_scan.empty()) return out;
+  const double area = settings.column_mm * settings.column_mm;
+  for (const auto& r : after.regions) {
+    const auto& regions = loaded.recipe.regions;
+    const auto region = std::find_if(regions.begin(), regions.end(), [&](const config::Region& x) { return x.name == r.name; });
+    if (region == regions.end()) continue;
+    // the re-scan's surface over each column: its highest point there
+    HeightColumns rescan(nullptr, settings.column_mm);
+    const Eigen::Isometry3d T = r.T_base_region;
+    for (const auto& p : r.roi_points_part) rescan.add(T * p.cast<double>());
+    double mm3 = 0.0;
+    rescan.for_each([&](const Vec3& top) {
+      const auto removed = first_scan.removed_above(top);
+      if (removed && *removed >= settings.removed_min_mm) mm3 += *removed * area;
+    });
+    out[region->tool] += mm3 / 1000.0;
+  }
+  return out;
+}
+
+double ToolWear::rate_mm_per_cm3(const config::Tool& tool) const {
+  return measurements >= kMinWearMeasurements && sum_vv > 0.0 ? std::max(0.0, sum_wv / sum_vv) : tool.wear_mm_per_cm3;
+}
+
+double ToolWear::rate_tolerance(const config::Tool& tool) const {
+  const double stated = std::clamp(tool.wear_tolerance_pct / 100.0, 0.0, 1.0);
+  const double rate = rate_mm_per_cm3(tool);
+  if (measurements < kMinWearMeasurements || sum_vv <= 0.0 || rate <= 0.0) return stated;
+  // the fit w = r V through the origin: its residuals' variance over the removal's spread
+  const double r = sum_wv / sum_vv;
+  const double residual2 = std::max(0.0, sum_ww - 2.0 * r * sum_wv + r * r * sum_vv);
+  const double sigma_r = std::sqrt(residual2 / static_cast<double>(measurements - 1) / sum_vv);
+  return std::min(1.0, 2.0 * sigma_r / rate);
+}
+
+WearRange ToolWear::wear(const config::Tool& tool, double more_cm3) const {
+  const double v = removed_cm3 + std::max(0.0, more_cm3);
+  const double r = rate_mm_per_cm3(tool), tol = rate_tolerance(tool);
+  return WearRange{std::max(0.0, (1.0 - tol) * r * v), r * v, (1.0 + tol) * r * v};
+}
+
+std::map<std::string, WearRange> CellBias::tool_wear(const config::PartRecipe& recipe) const {
+  std::map<std::string, WearRange> out;
+  for (const auto& t : recipe.tools) {
+    const auto it = tools.find(t.name);
+    out[t.name] = it == tools.end() ? WearRange{} : it->second.wear(t);
+  }
+  return out;
+}
+
+ToolWearMm CellBias::tool_wear_mm(const config::PartRecipe& recipe) const {
+  ToolWearMm out;
+  for (const auto& [name, w] : tool_wear(recipe)) out[name] = w.least_mm;
+  return out;
+}
+
+ToolWearMm CellBias::tool_wear_most_mm(const config::PartRecipe& recipe) const {
+  ToolWearMm out;
+  for (const auto& [name, w] : tool_wear(recipe)) out[name] = w.most_mm;
+  return out;
+}
+
+void CellBias::add_removed(const std::map<std::string, double>& removed_cm3) {
+  for (const auto& [name, cm3] : removed_cm3) tools[name].removed_cm3 += std::max(0.0, cm3);
+}
+
+void CellBias::add_wear_measurements(const CutOffset& measured, const ToolWearMm& commanded) {
+  for (const auto& [name, m] : measured.tools) {
+    auto& tw = tools[name];
+    if (tw.removed_cm3 <= 0.0) continue;
+    const auto c = commanded.find(name);
+    const double wear = (c == commanded.end() ? 0.0 : c->second) + m.wear_mm;
+    tw.sum_wv += wear * tw.removed_cm3;
+    tw.sum_vv += tw.removed_cm3 * tw.removed_cm3;
+    tw.sum_ww += wear * wear;
+    ++tw.measurements;
+  }
+}
+
+std::vector<std::string> CellBias::worn_out(const config::PartRecipe& recipe,
+                                            const std::map<std::string, double>& next_cm3) const {
+  std::vector<std::string> out;
+  for (const auto& t : recipe.tools) {
+    if (t.max_wear_mm <= 0.0) continue;
+    const auto it = tools.find(t.name);
+    if (it == tools.end()) continue;
+    const auto nx = next_cm3.find(t.name);
+    const double next = nx == next_cm3.end() ? 0.0 : nx->second;
+    if (it->second.wear(t, next).most_mm > t.max_wear_mm) out.push_back(t.name);
+  }
+  return out;
+}
+
+void CellBias::change_tool(const std::string& name) {
+  auto& tw = tools[name];
+  tw.removed_cm3 = 0.0;
+  ++tw.changes;
 }
 
 double PlacementUncertainty::along_mm(const Vec3& n) const { return std::sqrt(std::max(0.0, n.dot(bound_mm2 * n))); }
@@ -301,6 +517,19 @@ Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
     b.tools_id = j.value("tools_id", std::string{});
     b.learned = matrix_from_json(j, "learned");
     b.scatter_mm2 = matrix_from_json(j, "scatter_mm2");
+    if (j.contains("tools"))
+      for (const auto& [name, t] : j.at("tools").items()) {
+        ToolWear w;
+        w.removed_cm3 = t.value("removed_cm3", 0.0);
+        w.sum_wv = t.value("sum_wear_x_removed", 0.0);
+        w.sum_vv = t.value("sum_removed_squared", 0.0);
+        w.sum_ww = t.value("sum_wear_squared", 0.0);
+        w.measurements = t.value("measurements", std::size_t{0});
+        w.changes = t.value("changes", std::size_t{0});
+        if (!std::isfinite(w.removed_cm3) || !std::isfinite(w.sum_wv) || !std::isfinite(w.sum_vv))
+          throw std::invalid_argument("tools." + name + " is not finite");
+        b.tools[name] = w;
+      }
     return b;
   } catch (const std::exception& e) {
     return Error{"compensation.state", file.string() + ": not a compensation state file (" + e.what() + ")"};
@@ -308,12 +537,21 @@ Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
 }
 
 Status save_cell_bias(const std::filesystem::path& file, const CellBias& bias) {
+  nlohmann::ordered_json tools = nlohmann::ordered_json::object();
+  for (const auto& [name, w] : bias.tools)
+    tools[name] = {{"removed_cm3", w.removed_cm3},
+                   {"sum_wear_x_removed", w.sum_wv},
+                   {"sum_removed_squared", w.sum_vv},
+                   {"sum_wear_squared", w.sum_ww},
+                   {"measurements", w.measurements},
+                   {"changes", w.changes}};
   const nlohmann::ordered_json j = {{"bias_mm", {bias.bias_mm.x(), bias.bias_mm.y(), bias.bias_mm.z()}},
                                     {"updates", bias.updates},
                                     {"calibration_id", bias.calibration_id},
                                     {"tools_id", bias.tools_id},
                                     {"learned", matrix_to_json(bias.learned)},
                                     {"scatter_mm2", matrix_to_json(bias.scatter_mm2)},
+                                    {"tools", tools},
                                     {"frame", "base: where the tool cuts minus where it is told to, mm"}};
   return write_file_atomic(file, j.dump(2) + "\n");
 }

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <string>
 
 #include "fettle/core/log.hpp"
@@ -148,6 +149,7 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
 
   // Regions: a region the vision stage could not locate cannot be ground safely.
   std::vector<planning::RegionInput> inputs;
+  std::deque<config::Tool> worn_tools;  // the regions' tools as worn (stable addresses for the inputs)
   for (std::size_t i = 0; i < recipe.regions.size(); ++i) {
     const auto& region = recipe.regions[i];
     const auto& rr = out.inspection.regions[i];
@@ -171,7 +173,11 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
       return Error{rr.error->code, "step vision, region '" + region.name + "': " + rr.error->message, rr.error->kind};
     planning::RegionInput in;
     in.region = &region;
-    in.tool = &loaded.tool_for(region);
+    in.tool = &worn_tools.emplace_back(worn_tool(loaded.tool_for(region), options.tool_wear_mm));
+    if (const auto most = options.tool_wear_most_mm.find(region.tool); most != options.tool_wear_most_mm.end()) {
+      const auto least = options.tool_wear_mm.find(region.tool);
+      in.tool_worn_more_mm = std::max(0.0, most->second - (least == options.tool_wear_mm.end() ? 0.0 : least->second));
+    }
     // scene = base (= fixture) frame
     // exactly orthonormal: validation maps every pose back into the part frame with its
     // inverse and must read it as the planner placed it

@@ -76,6 +76,13 @@ planning::SignedDistance signed_distance_grid(const config::PartRecipe& recipe, 
 
 }  // namespace
 
+config::Tool worn_tool(const config::Tool& tool, const ToolWearMm& wear) {
+  config::Tool out = tool;
+  if (const auto it = wear.find(tool.name); it != wear.end())
+    out.diameter_mm = std::max(0.1, tool.diameter_mm - 2.0 * std::max(0.0, it->second));
+  return out;
+}
+
 const config::Tool& LoadedRecipe::tool_for(const config::Region& region) const {
   for (const auto& t : recipe.tools)
     if (t.name == region.tool) return t;

@@ -450,6 +450,11 @@ int trial(const Args& a) {
     const auto first_scan = scan(casting, seed, 0);
     fettle::process::ProcessOptions popt;
     popt.cell_bias_mm = learning ? cell_bias.bias_mm : fettle::Vec3::Zero();
+    // each wheel as worn as the cell predicts it (fettle/process/compensation.hpp, ToolWear)
+    if (learning) {
+      popt.tool_wear_mm = cell_bias.tool_wear_mm(recipe);
+      popt.tool_wear_most_mm = cell_bias.tool_wear_most_mm(recipe);
+    }
     const auto placement = fettle::process::placement_uncertainty(
         cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation);
     popt.placement_bound_mm2 = placement.bound_mm2;
@@ -522,7 +527,7 @@ int trial(const Args& a) {
       if (!runs) return fettle::Status(runs.error());
       for (const auto& run : runs->runs) {
         if (errors && errors->budget.wheel_wear_mm_per_cm3 > 0.0)
-          worn_mm[run.tool] += errors->budget.wheel_wear_mm_per_cm3 * run.result.removed_mm3() / 1000.0;
+          worn_mm[run.tool] += errors->wheel_wear_mm_per_cm3(run.tool) * run.result.removed_mm3() / 1000.0;
         for (const auto& gg : run.result.gouges) {
           gouges_by_region[run.region].push_back(gg);
           gouges.push_back(gg);
@@ -552,13 +557,24 @@ int trial(const Args& a) {
     const std::string first_verdict = ver ? fettle::process::to_string(ver->verdict) : "error";
     sj["first_verdict"] = first_verdict;
     std::optional<fettle::process::CutOffset> cut_offset;  // this cycle's, for its re-grind
+    // the iron each wheel removed, as the cell sees it: the first verification against the first
+    // scan, else (no verification) what the inspection found to remove
+    std::map<std::string, double> removed = ver ? fettle::process::measure_removed_cm3(loaded, out->inspection, *ver)
+                                                : fettle::process::removed_cm3(loaded, *out);
+    if (learning) cell_bias.add_removed(removed);
     if (ver && learning) {
       json cj;
       cj["bias_before_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};
-      const auto measured = fettle::process::measure_cut_offset(loaded, out->inspection, {out->trajectory}, *ver);
+      const auto measured =
+          fettle::process::measure_cut_offset(loaded, out->inspection, {out->trajectory}, *ver, popt.tool_wear_mm);
       if (measured) {
+        cell_bias.add_wear_measurements(*measured, popt.tool_wear_mm);
         cut_offset = *measured;
         cell_bias.update(*measured, cell.compensation);
+        json tw = json::object();
+        for (const auto& [name, m] : measured->tools)
+          tw[name] = {{"wear_mm", m.wear_mm}, {"std_mm", m.std_mm}, {"points", m.points}};
+        cj["measured_tool_wear_mm"] = tw;
         cj["measured_mm"] = {measured->offset_mm.x(), measured->offset_mm.y(), measured->offset_mm.z()};
         cj["measured_std_mm"] = {measured->std_mm.x(), measured->std_mm.y(), measured->std_mm.z()};
         cj["points"] = measured->points;
@@ -567,6 +583,12 @@ int trial(const Args& a) {
         cj["not_measured"] = measured.error().message;
       }
       cj["bias_after_mm"] = {cell_bias.bias_mm.x(), cell_bias.bias_mm.y(), cell_bias.bias_mm.z()};
+      cj["tool_wear_commanded_mm"] = popt.tool_wear_mm;
+      cj["removed_cm3"] = removed;
+      json pw = json::object();
+      for (const auto& [name, w] : cell_bias.tool_wear(recipe))
+        pw[name] = {{"least", w.least_mm}, {"expected", w.expected_mm}, {"most", w.most_mm}};
+      cj["tool_wear_predicted_mm"] = pw;
       const fettle::Vec3 injected = errors ? errors->path_bias_mm : path_bias;
       cj["injected_path_bias_mm"] = {injected.x(), injected.y(), injected.z()};
       cj["residual_bias_mm"] = (injected - cell_bias.bias_mm).norm();
@@ -591,6 +613,10 @@ int trial(const Args& a) {
       }
       ro.before = &out->inspection;
       ro.before_plans = &out->plans;
+      if (learning) {  // with this cycle's grind's
+        ro.tool_wear_mm = cell_bias.tool_wear_mm(recipe);
+        ro.tool_wear_most_mm = cell_bias.tool_wear_most_mm(recipe);
+      }
       std::fprintf(stderr, ", re-grind");
       json rg;
       rg["regions"] = ro.regions;
@@ -611,9 +637,33 @@ int trial(const Args& a) {
           std::fprintf(stderr, ", re-scan, verify");
           rescan = scan(casting, seed, 200);
           ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory, again->trajectory}, vo);
+          // what the re-grind took beyond the first grind
+          auto more = ver ? fettle::process::measure_removed_cm3(loaded, out->inspection, *ver)
+                          : fettle::process::removed_cm3(loaded, *again);
+          if (ver)
+            for (auto& [name, cm3] : more) cm3 = std::max(0.0, cm3 - removed[name]);
+          if (learning) cell_bias.add_removed(more);
         }
       }
       sj["regrind"] = rg;
+    }
+    // A wheel the cell predicts worn past its life after one more casting like this one is
+    // changed before the next (fettled stops with tool.worn and waits for `fettle tool changed`):
+    // the simulated operator fits a new one.
+    if (learning) {
+      const auto predicted = cell_bias.tool_wear(recipe);
+      json changes = json::array();
+      for (const auto& name : cell_bias.worn_out(recipe, removed)) {
+        const auto& w = predicted.at(name);
+        changes.push_back({{"tool", name},
+                           {"predicted_wear_mm", {{"least", w.least_mm}, {"expected", w.expected_mm}, {"most", w.most_mm}}},
+                           {"true_wear_mm", worn_mm[name]}});
+        std::fprintf(stderr, ", new wheel %s (worn %.2f mm, predicted %.2f-%.2f)", name.c_str(), worn_mm[name],
+                     w.least_mm, w.most_mm);
+        worn_mm[name] = 0.0;
+        cell_bias.change_tool(name);
+      }
+      if (!changes.empty()) sj["wheel_changes"] = changes;
     }
     std::fprintf(stderr, ", evaluate");
     const auto pts = eval_points(recipe, rescan.captures);
@@ -889,6 +939,9 @@ int trial(const Args& a) {
   if (errors) {
     summary["errors"] = json::parse(errors->to_json().dump());
     summary["errors"]["wheel_wear_mm_at_end"] = worn_mm;
+    json rates = json::object();
+    for (const auto& t : recipe.tools) rates[t.name] = errors->wheel_wear_mm_per_cm3(t.name);
+    summary["errors"]["wheel_wear_true_mm_per_cm3"] = rates;
   }
   summary["gouged_castings"] = gouged_seeds;
   summary["gouges_missed_by_verification"] = missed_gouges;

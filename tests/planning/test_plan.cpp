@@ -75,6 +75,46 @@ TEST(RiserPlan, LayersCoverTheFootprintAndLeaveTheAllowance) {
   for (std::size_t i = 1; i < rows.size(); ++i) EXPECT_LE(rows[i] - rows[i - 1], 4.0 + 1e-6);
 }
 
+// A cup wheel worn from 16 to 10 mm under a recipe's 10 mm stepover: its rows close up to 0.8 of
+// its diameter, and every point of the riser's footprint lies under the worn wheel's end face on
+// the last layer (at 10 mm apart a 10 mm wheel just touches between rows, and the path's noise
+// leaves a ridge there).
+TEST(RiserPlan, AWornWheelsRowsCloseUp) {
+  auto scene = make_scene();
+  RegionInput in = scene.inputs[1];
+  config::Region region = *in.region;
+  region.stepover_mm = 10.0;
+  config::Tool worn;
+  worn.name = "flat-16";
+  worn.shape = config::ToolShape::cylinder;
+  worn.diameter_mm = 10.0;  // worn 3 mm in radius
+  worn.length_mm = 10.0;
+  worn.tcp_mm = {0, 0, 160};
+  region.tool = worn.name;
+  in.region = &region;
+  in.tool = &worn;
+  const auto plan = plan_region(in, PlannerSettings{});
+  ASSERT_TRUE(plan) << plan.error().message;
+  const int last = plan->segments - 1;
+  std::vector<double> rows;
+  for (const auto& p : plan->points)
+    if (p.segment == last && p.kind == MoveKind::grind) rows.push_back(p.T_base_tool.position_mm.y());
+  std::sort(rows.begin(), rows.end());
+  rows.erase(std::unique(rows.begin(), rows.end(), [](double a, double b) { return std::abs(a - b) < 1e-6; }), rows.end());
+  ASSERT_GT(rows.size(), 3U);
+  for (std::size_t i = 1; i < rows.size(); ++i) EXPECT_LE(rows[i] - rows[i - 1], 8.0 + 1e-6);
+  RegionPlan last_layer = *plan;
+  last_layer.points.erase(std::remove_if(last_layer.points.begin(), last_layer.points.end(),
+                                         [&](const TrajectoryPoint& p) { return p.segment != last; }),
+                          last_layer.points.end());
+  // the pad's riser footprint (radius 15 round (-82, 48)) under the worn wheel, 0.2 mm inside its rim
+  for (double x = -96.0; x <= -68.0; x += 1.0)
+    for (double y = 34.0; y <= 62.0; y += 1.0)
+      if (std::hypot(x + 82.0, y - 48.0) <= 14.0) {
+        EXPECT_TRUE(under_a_grinding_point(last_layer, Vec3(x, y, 45.0), 5.0 - 0.2)) << x << ", " << y;
+      }
+}
+
 // Stray excess points along two sides of the pad stretch the raster's bounding box to a corner
 // over a tall column beside the pad, where the tool cannot go at any height the back-off allows:
 // the raster leaves out the points there that cover no material and lifts over the gap. Material under an unreachable point is

@@ -216,6 +216,11 @@ TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   b.calibration_id = "abc";
   b.learned = Vec3(0.0, 0.0, 1.0).asDiagonal();
   b.scatter_mm2(2, 2) = 0.0025;
+  b.tools["flat-16"].removed_cm3 = 12.5;
+  b.tools["flat-16"].changes = 2;
+  b.tools["chamfer-disc"].sum_wv = 0.3;
+  b.tools["chamfer-disc"].sum_vv = 4.0;
+  b.tools["chamfer-disc"].measurements = 3;
   ASSERT_TRUE(fp::save_cell_bias(dir / "compensation.json", b));
   const auto r = fp::load_cell_bias(dir / "compensation.json");
   ASSERT_TRUE(r) << r.error().message;
@@ -224,6 +229,13 @@ TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   EXPECT_EQ(r->calibration_id, "abc");
   EXPECT_LT((r->learned - b.learned).norm(), 1e-12);
   EXPECT_LT((r->scatter_mm2 - b.scatter_mm2).norm(), 1e-12);
+  ASSERT_EQ(r->tools.size(), 2u);
+  EXPECT_DOUBLE_EQ(r->tools.at("flat-16").removed_cm3, 12.5);
+  EXPECT_EQ(r->tools.at("flat-16").changes, 2u);
+  fettle::config::Tool disc;
+  disc.wear_mm_per_cm3 = 0.05;
+  EXPECT_DOUBLE_EQ(r->tools.at("chamfer-disc").rate_mm_per_cm3(disc), 0.075);
+  EXPECT_EQ(r->tools.at("chamfer-disc").measurements, 3u);
   const auto none = fp::load_cell_bias(dir / "missing.json");
   ASSERT_TRUE(none);
   EXPECT_EQ(none->updates, 0u);
@@ -232,6 +244,154 @@ TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   ASSERT_FALSE(bad);
   EXPECT_NE(bad.error().message.find("bad.json"), std::string::npos) << bad.error().message;
   std::filesystem::remove_all(dir);
+}
+
+/// A recipe with one region ground by the side of a 40 mm disc (axis along base z).
+fp::LoadedRecipe disc_recipe() {
+  fp::LoadedRecipe r;
+  fettle::config::Tool disc;
+  disc.name = "chamfer-disc";
+  disc.shape = fettle::config::ToolShape::cylinder;
+  disc.diameter_mm = 40.0;
+  disc.length_mm = 6.0;
+  r.recipe.tools.push_back(disc);
+  fettle::config::Region region;
+  region.name = "ring";
+  region.tool = "chamfer-disc";
+  r.recipe.regions.push_back(region);
+  return r;
+}
+
+/// The disc's side ground round a fin on a ring: the disc's axis goes round a 50 mm circle
+/// (tip at z = 0), and the re-scan shows the wall it left where the disc really was (offset)
+/// with its real radius (commanded less `wear`), facing the ring's centre.
+Cut ring_wall(const Vec3& offset, double wear, double noise_mm, unsigned seed) {
+  Cut c;
+  c.commanded.segment_regions = {"ring"};
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> n(0.0, noise_mm);
+  fp::RegionVerification rv;
+  rv.name = "ring";
+  const double R = 20.0 - wear;
+  for (int i = 0; i < 360; ++i) {
+    const double a = i * M_PI / 180.0;
+    const Vec3 u(std::cos(a), std::sin(a), 0.0);
+    fettle::TrajectoryPoint p;
+    p.T_base_tool.position_mm = 50.0 * u;
+    p.kind = fettle::MoveKind::grind;
+    c.commanded.points.push_back(p);
+    for (double z = 1.0; z <= 5.0; z += 1.0) {
+      const Vec3 q = 50.0 * u + offset - R * u + Vec3(0, 0, z) + n(rng) * u;
+      rv.roi_points_part.push_back(q.cast<float>());
+      // the fin stood 3 mm higher over the same place
+      c.before.scene_part.points.emplace_back(static_cast<float>(q.x()), static_cast<float>(q.y()), 9.0f);
+    }
+  }
+  c.after.regions.push_back(rv);
+  return c;
+}
+
+TEST(Compensation, AWornDiscsRadiusIsMeasuredApartFromTheOffset) {
+  const auto recipe = disc_recipe();
+  const Vec3 offset(0.1, -0.08, 0.0);
+  const auto cut = ring_wall(offset, 0.4, 0.03, 5);
+  const auto m = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after);
+  ASSERT_TRUE(m) << m.error().message;
+  ASSERT_EQ(m->tools.count("chamfer-disc"), 1u) << m->describe();
+  EXPECT_NEAR(m->tools.at("chamfer-disc").wear_mm, 0.4, 0.02);
+  EXPECT_LT(m->tools.at("chamfer-disc").std_mm, 0.01);
+  EXPECT_NEAR(m->offset_mm.x(), 0.1, 0.02) << m->describe();
+  EXPECT_NEAR(m->offset_mm.y(), -0.08, 0.02) << m->describe();
+  // the wall's normals all lie across the axis: the height is not observed
+  EXPECT_EQ(m->observed_directions(), 2) << m->describe();
+  // planned with the disc worn 0.3 mm, the cut shows the 0.1 mm it wore beyond that
+  const auto again = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after, {{"chamfer-disc", 0.3}});
+  ASSERT_TRUE(again) << again.error().message;
+  ASSERT_EQ(again->tools.count("chamfer-disc"), 1u);
+  EXPECT_NEAR(again->tools.at("chamfer-disc").wear_mm, 0.1, 0.02);
+}
+
+TEST(Compensation, ABallsRadiusAgainstAGroovesBottomIsLeftToTheOffset) {
+  // a groove's bottom looks up: the ball's radius and the offset's height move it alike, and
+  // the fit does not split them by guesswork
+  const auto recipe = ball_recipe();
+  const auto cut = grooves(Vec3(0.0, 0.0, -0.1), true, 0.03, 6);
+  const auto m = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after);
+  ASSERT_TRUE(m) << m.error().message;
+  EXPECT_EQ(m->tools.count("ball-12"), 0u) << m->tools.begin()->second.wear_mm;
+  EXPECT_NEAR(m->offset_mm.z(), -0.1, 0.02) << m->describe();
+}
+
+TEST(Compensation, AWheelsWearIsPredictedFromTheIronItRemovedAtItsMeasuredRate) {
+  fettle::config::PartRecipe recipe;
+  fettle::config::Tool disc;
+  disc.name = "chamfer-disc";
+  disc.wear_mm_per_cm3 = 0.05;    // stated ...
+  disc.wear_tolerance_pct = 30.0;  // ... within 30 %
+  disc.max_wear_mm = 1.0;
+  recipe.tools.push_back(disc);
+  fp::CellBias bias;
+  EXPECT_DOUBLE_EQ(bias.tool_wear(recipe).at("chamfer-disc").most_mm, 0.0);
+  // the stated rate and its tolerance until the cut has shown the radius three times; the
+  // wheel's own rate is 0.07 mm/cm3
+  const double truth = 0.07;
+  for (int cycle = 1; cycle <= 3; ++cycle) {
+    bias.add_removed({{"chamfer-disc", 4.0}});
+    const auto w = bias.tool_wear(recipe).at("chamfer-disc");
+    if (cycle < 3) {
+      EXPECT_NEAR(w.expected_mm, 0.05 * 4.0 * cycle, 1e-12);
+      EXPECT_NEAR(w.least_mm, 0.7 * w.expected_mm, 1e-12);
+      EXPECT_NEAR(w.most_mm, 1.3 * w.expected_mm, 1e-12);
+    }
+    if (cycle == 2) {  // at most 1.3 x 0.05 x 12 = 0.78 mm after one more casting: within its life
+      EXPECT_TRUE(bias.worn_out(recipe, {{"chamfer-disc", 4.0}}).empty());
+    }
+    // planned with the least, the cut shows what the wheel wore beyond it
+    const auto planned = bias.tool_wear_mm(recipe);
+    fp::CutOffset measured;
+    measured.tools["chamfer-disc"] = fp::ToolWearMeasured{truth * 4.0 * cycle - planned.at("chamfer-disc"), 0.005, 900};
+    bias.add_wear_measurements(measured, planned);
+  }
+  auto w = bias.tool_wear(recipe).at("chamfer-disc");
+  EXPECT_NEAR(w.expected_mm, 0.84, 1e-9);
+  EXPECT_NEAR(w.least_mm, 0.84, 1e-9);  // three measurements on one line: no scatter left
+  EXPECT_NEAR(w.most_mm, 0.84, 1e-9);
+  // its life: 0.07 x 16 = 1.12 mm after one more casting like the last
+  ASSERT_EQ(bias.worn_out(recipe, {{"chamfer-disc", 4.0}}), std::vector<std::string>{"chamfer-disc"});
+  // a new wheel starts from zero at the rate its kind showed
+  bias.change_tool("chamfer-disc");
+  EXPECT_DOUBLE_EQ(bias.tool_wear(recipe).at("chamfer-disc").most_mm, 0.0);
+  bias.add_removed({{"chamfer-disc", 2.0}});
+  EXPECT_NEAR(bias.tool_wear(recipe).at("chamfer-disc").expected_mm, 0.14, 1e-9);
+  EXPECT_EQ(bias.tools.at("chamfer-disc").changes, 1u);
+  // a scattered measurement widens the range again
+  bias.add_removed({{"chamfer-disc", 2.0}});
+  fp::CutOffset off;
+  off.tools["chamfer-disc"] = fp::ToolWearMeasured{0.1, 0.005, 900};
+  bias.add_wear_measurements(off, bias.tool_wear_mm(recipe));
+  w = bias.tool_wear(recipe).at("chamfer-disc");
+  EXPECT_LT(w.least_mm, w.expected_mm - 0.01);
+  EXPECT_GT(w.most_mm, w.expected_mm + 0.01);
+}
+
+TEST(Compensation, TheIronRemovedIsWhatTheReScanLacksAgainstTheFirstScan) {
+  const auto recipe = disc_recipe();
+  fettle::vision::Inspection before;
+  fp::VerificationResult after;
+  fp::RegionVerification rv;
+  rv.name = "ring";
+  // 20 x 10 mm ground from 5 mm down to 2 mm, and beside it 20 x 10 mm the tool left as it was
+  // (0.05 mm of the scanner's noise lower: not iron removed)
+  for (double x = 0.05; x < 20.0; x += 0.1)
+    for (double y = 0.05; y < 20.0; y += 0.1) {
+      before.scene_part.points.emplace_back(static_cast<float>(x), static_cast<float>(y), 5.0f);
+      rv.roi_points_part.emplace_back(static_cast<float>(x), static_cast<float>(y), y < 10.0 ? 2.0f : 4.95f);
+    }
+  after.regions.push_back(rv);
+  const auto removed = fp::measure_removed_cm3(recipe, before, after);
+  ASSERT_EQ(removed.count("chamfer-disc"), 1u);
+  // 3 mm x 200 mm2 = 0.6 cm3, to within the columns cut by the 0.6 mm grid at the edges
+  EXPECT_NEAR(removed.at("chamfer-disc"), 0.6, 0.02);
 }
 
 }  // namespace

@@ -33,6 +33,17 @@ struct Tool {
   double length_mm = 10.0;
   double cone_angle_deg = 0.0;                  ///< cone tools only
   std::array<double, 3> tcp_mm{0.0, 0.0, 0.0};  ///< TCP in the flange frame
+  /// The wheel's stated wear: its radius shrinks this much per cm3 of iron it removes (from its
+  /// maker's G-ratio; 0: not stated). The cell predicts each wheel's wear from the volume it
+  /// removed at this rate until its cut shows the wheel's radius, then at the rate it measured
+  /// (process::CellBias, docs/compensation.md).
+  double wear_mm_per_cm3 = 0.0;
+  /// How far one wheel's own rate may lie from the stated one, either way: the cell plans with
+  /// the least wear and asks for a new wheel at the most until it has measured the wheel's rate.
+  double wear_tolerance_pct = 30.0;
+  /// The wheel's life: the cell asks for a new wheel when it predicts more radius lost than this
+  /// (0: no limit).
+  double max_wear_mm = 0.0;
 };
 
 struct Region {

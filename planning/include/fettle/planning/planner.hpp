@@ -80,6 +80,9 @@ struct RegionInput {
   /// the whole fin: what a grind leaves of a fin is pieces on a short arc (110 of 360 degrees)
   /// that fit no ring, or a wrong one (test RingPlan.AReGrindFollowsTheFirstPlansRing).
   const RegionPlan* first = nullptr;
+  /// The wheel may be up to this much smaller in radius than `tool` says (its wear is known
+  /// within a range, process::WearRange): a riser's rows close up for it.
+  double tool_worn_more_mm = 0.0;
 };
 
 /// Planner limits and tunables (safety limits come from the cell's [safety]).

@@ -16,6 +16,7 @@
 // Tests: tests/process/test_compensation.cpp; `fettle-sim trial` prints the estimate per casting.
 #include <cstddef>
 #include <filesystem>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -27,6 +28,14 @@
 
 namespace fettle::process {
 
+/// A wheel's radius as its cut shows it: on its side (a disc's or a burr's) and all over a
+/// ball the re-scan lies w inside the commanded tool when the wheel is w smaller than commanded.
+struct ToolWearMeasured {
+  double wear_mm = 0.0;  ///< radius lost beyond the wear it was commanded with
+  double std_mm = 0.0;   ///< 1-sigma
+  std::size_t points = 0;  ///< re-scan points on the surface its radius cut
+};
+
 /// Where the tool cut against where it was told to cut, from one cycle's re-scan (base frame).
 struct CutOffset {
   Vec3 offset_mm = Vec3::Zero();  ///< along the observed directions; 0 along the others
@@ -36,6 +45,10 @@ struct CutOffset {
   Vec3 std_mm = Vec3::Zero();     ///< 1-sigma of offset_mm per base axis (0 where unobserved)
   std::size_t points = 0;         ///< re-scan points on cut surfaces that carry the fit
   double rms_mm = 0.0;            ///< their residual to the fitted tool surface
+  /// The wheels whose radius the cut showed apart from the offset (by tool name): fitted with it,
+  /// sd_i = n_i . b - c_i w_tool, c_i the share of the surface's normal across the tool's axis
+  /// (1 on a ball and a cylinder's side, 0 on its flat end).
+  std::map<std::string, ToolWearMeasured> tools;
   [[nodiscard]] int observed_directions() const;
   /// "(x, y, z) mm +- (sx, sy, sz) from N cut-surface points, k of 3 directions observed"
   [[nodiscard]] std::string describe() const;
@@ -56,11 +69,53 @@ struct CutOffsetSettings {
 
 /// The cell's offset measured on the surfaces the tool cut in this cycle. `before`: the cycle's
 /// first inspection (where material was); `ground`: the trajectories as commanded (with the
-/// bias correction they were sent with); `after`: the verification of the re-scan. An error
-/// (code "compensation.no_cut") when no cut surface was seen; cone tools are not measured.
+/// bias correction they were sent with); `after`: the verification of the re-scan; `wear`: the
+/// wear the tools were planned with (ProcessOptions::tool_wear_mm). An error (code
+/// "compensation.no_cut") when no cut surface was seen; cone tools are not measured.
 Result<CutOffset> measure_cut_offset(const LoadedRecipe& recipe, const vision::Inspection& before,
                                      const std::vector<Trajectory>& ground, const VerificationResult& after,
-                                     const CutOffsetSettings& settings = {});
+                                     const ToolWearMm& wear = {}, const CutOffsetSettings& settings = {});
+
+/// The iron each tool is to remove in a processed cycle (cm3 by tool name): the excess volume
+/// the inspection measured over each planned region. It holds the casting's form deviation
+/// above the template too; measure_removed_cm3() is what a verification scan shows.
+std::map<std::string, double> removed_cm3(const LoadedRecipe& recipe, const ProcessOutput& processed);
+/// The iron each tool removed (cm3 by tool name), seen from above: over each region's
+/// re-scanned ROI, by how much the re-scan's surface lies below the first scan's, column by
+/// column (base-frame x-y columns of column_mm; a column counts from removed_min_mm down,
+/// beneath that is the scanner's noise). The casting's form deviation is in both scans and
+/// drops out.
+std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& recipe, const vision::Inspection& before,
+                                                  const VerificationResult& after, const CutOffsetSettings& settings = {});
+
+/// One wheel's wear as the cell predicts it: the iron it removed since it was fitted times its
+/// wear rate, the recipe's stated `wear_mm_per_cm3` until its cut has shown its radius, then the
+/// rate those measurements fit (through the origin: wear = rate x removed). The rate is the
+/// wheel's kind's, kept when a worn wheel is changed for a new one.
+/// A wheel's radius lost to wear: the least, the expected and the most it may be. The cell plans
+/// with the least (a wheel planned smaller than it is would be moved into the wall), closes a
+/// riser's rows up for the most and asks for a new wheel when the most passes its life.
+struct WearRange {
+  double least_mm = 0.0;
+  double expected_mm = 0.0;
+  double most_mm = 0.0;
+};
+
+struct ToolWear {
+  double removed_cm3 = 0.0;      ///< by this wheel since it was fitted
+  double sum_wv = 0.0;           ///< measured wear x removed, summed over the measurements
+  double sum_vv = 0.0;           ///< removed squared, summed
+  double sum_ww = 0.0;           ///< measured wear squared, summed (the fit's scatter)
+  std::size_t measurements = 0;  ///< cycles whose cut showed the radius
+  std::size_t changes = 0;       ///< wheels changed for new ones
+  /// mm of radius per cm3: the measured rate, else the tool's stated one.
+  [[nodiscard]] double rate_mm_per_cm3(const config::Tool& tool) const;
+  /// The rate's relative uncertainty (two sigma of its fit from kMinWearMeasurements on, else
+  /// the tool's stated tolerance).
+  [[nodiscard]] double rate_tolerance(const config::Tool& tool) const;
+  /// The wear after `more_cm3` more iron.
+  [[nodiscard]] WearRange wear(const config::Tool& tool, double more_cm3 = 0.0) const;
+};
 
 /// The cell's learned bias: where its tool cuts minus where it is told to (base frame).
 struct CellBias {
@@ -74,10 +129,28 @@ struct CellBias {
   Eigen::Matrix3d scatter_mm2 = Eigen::Matrix3d::Zero();
   std::string calibration_id;     ///< the calibration it was learned under (reset when it changes)
   std::string tools_id;           ///< the tools it was learned with (reset when they change)
+  std::map<std::string, ToolWear> tools;  ///< each wheel's wear, by tool name
 
   /// Moves the estimate by gain x (measured - estimate) along the measurement's observed
   /// directions, bounded to max_offset_mm; returns the step taken.
   Vec3 update(const CutOffset& measured, const config::CompensationSection& settings);
+  /// Each recipe tool's predicted wear.
+  [[nodiscard]] std::map<std::string, WearRange> tool_wear(const config::PartRecipe& recipe) const;
+  /// The least of it (ProcessOptions::tool_wear_mm) and the most (ProcessOptions::tool_wear_most_mm).
+  [[nodiscard]] ToolWearMm tool_wear_mm(const config::PartRecipe& recipe) const;
+  [[nodiscard]] ToolWearMm tool_wear_most_mm(const config::PartRecipe& recipe) const;
+  /// Counts a grind's removal (cm3 by tool name, removed_cm3()).
+  void add_removed(const std::map<std::string, double>& removed_cm3);
+  /// Each wheel in `measured` (a cycle's cut offset, whose paths were planned with the wear
+  /// `commanded`) was worn commanded + measured after the removal counted so far: one more
+  /// point of its rate's fit.
+  void add_wear_measurements(const CutOffset& measured, const ToolWearMm& commanded);
+  /// The tools whose most wear after one more cycle like the last (`next_cm3` by tool name)
+  /// passes their max_wear_mm: "change the wheel" before the next cycle. Empty: none.
+  [[nodiscard]] std::vector<std::string> worn_out(const config::PartRecipe& recipe,
+                                                  const std::map<std::string, double>& next_cm3) const;
+  /// A new wheel of the tool's kind is fitted: its removal starts at 0, the rate is kept.
+  void change_tool(const std::string& name);
   void reset() { *this = CellBias{}; }
   [[nodiscard]] std::string describe() const;  ///< "(x, y, z) mm after N cycles"
 };

@@ -26,6 +26,7 @@
 #include <cstddef>
 #include <filesystem>
 #include <functional>
+#include <map>
 #include <optional>
 #include <string>
 #include <vector>
@@ -137,6 +138,11 @@ struct RegionMetrics {
   double material_left_length_mm = 0.0;  ///< straight flash: the length of fin so left (RegionPlan)
 };
 
+/// Each tool's radius lost to wear, mm, by tool name (process::CellBias::tool_wear_mm()).
+using ToolWearMm = std::map<std::string, double>;
+/// The recipe's tool as worn by `wear`: its diameter less twice its wear (at least 0.1 mm).
+config::Tool worn_tool(const config::Tool& tool, const ToolWearMm& wear);
+
 struct ProcessOptions {
   /// Regions to plan (names); empty = all. A re-grind plans only what verify() flagged.
   std::vector<std::string> regions;
@@ -155,6 +161,11 @@ struct ProcessOptions {
   /// A re-grind: the cycle's first plans (ProcessOutput::plans). A ring or circle flash is
   /// ground again along its first plan's ring (planning::RegionInput::first).
   const std::vector<planning::RegionPlan>* before_plans = nullptr;
+  /// The wheels' wear as the cell predicts it (process::CellBias::tool_wear): each region is
+  /// planned with its tool smaller by the least wear (a worn disc's side is moved in to the
+  /// wall by no more than it surely wore), and a riser's rows close up for the most.
+  ToolWearMm tool_wear_mm;
+  ToolWearMm tool_wear_most_mm;
 };
 
 struct ProcessOutput {
