@@ -143,6 +143,26 @@ TEST_F(ControlFixture, ResetHoldUnholdDryCycleAreRefusedOutsideMaintenance) {
   EXPECT_EQ(handler.commands.load(), 4);
 }
 
+// A new wheel after a tool.worn fault: maintenance mode only, the tool named, an unknown one
+// refused with the handler's reason.
+TEST_F(ControlFixture, ToolChangedNeedsMaintenanceAndATool) {
+  ASSERT_TRUE(start());
+  json r = ask(socket(), json{{"cmd", "tool_changed"}, {"tool", "flat-16"}});
+  EXPECT_EQ(r.value("code", ""), control::code::maintenance_required) << r.dump();
+  EXPECT_EQ(handler.commands.load(), 0);
+  ASSERT_TRUE(ask(socket(), json{{"cmd", "maintenance"}, {"on", true}}).value("ok", false));
+  r = ask(socket(), json{{"cmd", "tool_changed"}});
+  EXPECT_EQ(r.value("code", ""), control::code::bad_argument) << r.dump();
+  EXPECT_NE(r.value("error", "").find("\"tool\""), std::string::npos) << r.dump();
+  r = ask(socket(), json{{"cmd", "tool_changed"}, {"tool", "flat-61"}});
+  EXPECT_EQ(r.value("code", ""), "fettled.unknown_tool") << r.dump();
+  EXPECT_NE(r.value("error", "").find("flat-61"), std::string::npos) << r.dump();
+  r = ask(socket(), json{{"cmd", "tool_changed"}, {"tool", "flat-16"}});
+  EXPECT_TRUE(r.value("ok", false)) << r.dump();
+  EXPECT_EQ(r.value("tool", ""), "flat-16");
+  EXPECT_EQ(handler.tool_changed_name, "flat-16");
+}
+
 TEST_F(ControlFixture, HandlerCanRefuseMaintenanceMode) {
   handler.refuse_maintenance = true;
   ASSERT_TRUE(start());

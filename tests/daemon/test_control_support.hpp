@@ -74,6 +74,13 @@ class FakeHandler : public daemon::control::Handler {
     ++commands;
     return json{{"cycle_id", "dry-1"}};
   }
+  std::string tool_changed_name;  ///< the last tool_changed's tool
+  Result<json> tool_changed(const std::string& tool) override {
+    ++commands;
+    if (tool != "flat-16") return Error{"fettled.unknown_tool", "no recipe has a tool '" + tool + "' (tools: flat-16)"};
+    tool_changed_name = tool;
+    return json{{"tool", tool}, {"wear_mm", 0.0}};
+  }
   Status maintenance_changing(bool on) override {
     if (on && refuse_maintenance) return Error{"packml.busy", "cannot enter maintenance during Execute; hold first"};
     return {};

@@ -353,7 +353,8 @@ json Server::Impl::handle(const json& request) {
         r = json{{"ok", true}, {key, std::move(res.value())}};
       }
     };
-    const bool gated = cmd == "reset" || cmd == "hold" || cmd == "unhold" || cmd == "dry_cycle";
+    const bool gated =
+        cmd == "reset" || cmd == "hold" || cmd == "unhold" || cmd == "dry_cycle" || cmd == "tool_changed";
     if (gated && !maintenance) {
       r = error_reply(code::maintenance_required,
                       "\"" + cmd + "\" is only accepted in maintenance mode; switch it on first with "
@@ -379,6 +380,12 @@ json Server::Impl::handle(const json& request) {
       from(handler.unhold(), nullptr);
     } else if (cmd == "dry_cycle") {
       from(handler.dry_cycle(), nullptr);
+    } else if (cmd == "tool_changed") {
+      const auto it = request.find("tool");
+      if (it == request.end() || !it->is_string() || it->get<std::string>().empty())
+        return error_reply(code::bad_argument,
+                           "\"tool\" must name the tool whose wheel is new, e.g. {\"cmd\":\"tool_changed\",\"tool\":\"flat-16\"}");
+      from(handler.tool_changed(it->get<std::string>()), nullptr);
     } else if (cmd == "maintenance") {
       const auto it = request.find("on");
       if (it != request.end()) {
@@ -395,7 +402,8 @@ json Server::Impl::handle(const json& request) {
     } else {
       r = error_reply(code::unknown_command,
                       "unknown command \"" + cmd +
-                          "\"; known: status, last_cycle, cycles, maintenance, reset, hold, unhold, dry_cycle");
+                          "\"; known: status, last_cycle, cycles, maintenance, reset, hold, unhold, dry_cycle, "
+                          "tool_changed");
     }
   } catch (const std::exception& e) {
     log::get("control")->error("control: handling {} failed: {}", request.dump(-1, ' ', false, json::error_handler_t::replace), e.what());

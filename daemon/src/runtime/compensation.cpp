@@ -52,8 +52,72 @@ void Runtime::Impl::learn_bias(Cycle& c) {
   log->info("cycle {}: compensation: the tool cut {} from where it was told; the learned bias moves by "
             "({:.3f}, {:.3f}, {:.3f}) to {}",
             c.summary.id, m.describe(), step.x(), step.y(), step.z(), cell_bias.describe());
+  cell_bias.add_wear_measurements(m, c.tool_wear_mm);
+  const auto predicted = cell_bias.tool_wear(c.recipe->recipe);
+  for (const auto& [name, w] : m.tools) {
+    const auto cmd = c.tool_wear_mm.find(name);
+    const auto now = predicted.find(name);
+    log->info("cycle {}: compensation: wheel '{}' cut {:.3f} +- {:.3f} mm inside its commanded radius ({} points; "
+              "planned worn {:.3f} mm); its wear is now predicted {:.3f} mm ({:.3f} to {:.3f})",
+              c.summary.id, name, w.wear_mm, w.std_mm, w.points, cmd == c.tool_wear_mm.end() ? 0.0 : cmd->second,
+              now == predicted.end() ? 0.0 : now->second.expected_mm, now == predicted.end() ? 0.0 : now->second.least_mm,
+              now == predicted.end() ? 0.0 : now->second.most_mm);
+  }
   if (auto st = process::save_cell_bias(process::cell_bias_file(cell), cell_bias); !st)
     c.warnings.push_back("compensation: " + st.error().message);
+}
+
+void Runtime::Impl::count_removal(Cycle& c, const ProcessOutput* planned, bool first_grind) {
+  if (!cell.compensation.enabled || !c.recipe) return;
+  if (planned != nullptr) {
+    const auto more = process::removed_cm3(*c.recipe, *planned);
+    for (const auto& [name, cm3] : more) c.removed_seen_cm3[name] += cm3;
+  }
+  std::map<std::string, double> delta;
+  for (const auto& [name, cm3] : c.removed_seen_cm3) {
+    delta[name] = std::max(0.0, cm3 - c.removed_counted_cm3[name]);
+    c.removed_counted_cm3[name] = std::max(cm3, c.removed_counted_cm3[name]);
+  }
+  cell_bias.add_removed(delta);
+  if (first_grind) last_removed_cm3[c.recipe_id] = delta;
+  if (auto st = process::save_cell_bias(process::cell_bias_file(cell), cell_bias); !st)
+    c.warnings.push_back("compensation: " + st.error().message);
+}
+
+std::optional<Fault> Runtime::Impl::worn_wheels(const Cycle& c) const {
+  if (!cell.compensation.enabled || !c.recipe || c.dry) return std::nullopt;
+  const auto& recipe = c.recipe->recipe;
+  const auto last = last_removed_cm3.find(c.recipe_id);
+  const auto worn = cell_bias.worn_out(recipe, last == last_removed_cm3.end() ? std::map<std::string, double>{} : last->second);
+  if (worn.empty()) return std::nullopt;
+  const auto wear = cell_bias.tool_wear(recipe);
+  std::string what;
+  for (const auto& name : worn) {
+    const auto t = std::find_if(recipe.tools.begin(), recipe.tools.end(), [&](const config::Tool& x) { return x.name == name; });
+    what += fmt::format("{}wheel '{}' is worn {:.2f} mm (up to {:.2f}; its life: {:.2f} mm)", what.empty() ? "" : ", ",
+                        name, wear.at(name).expected_mm, wear.at(name).most_mm,
+                        t == recipe.tools.end() ? 0.0 : t->max_wear_mm);
+  }
+  return Fault{FaultCode::tool_worn,
+               what + " and may pass it on this casting: fit a new wheel and run `fettle tool changed " + worn.front() +
+                   "` in maintenance mode",
+               "tools"};
+}
+
+Result<json> Runtime::Impl::tool_changed(const std::string& name) {
+  if (cycle) return Error{"fettled.busy", "cycle " + cycle->summary.id + " is running; change the wheel when it ends"};
+  bool known = false;
+  std::string names;
+  for (const auto& [id, r] : recipes)
+    for (const auto& t : r->recipe.tools) {
+      known = known || t.name == name;
+      names += (names.empty() ? "" : ", ") + t.name;
+    }
+  if (!known) return Error{"fettled.unknown_tool", "no recipe of " + cell.source.string() + " has a tool '" + name + "' (tools: " + names + ")"};
+  cell_bias.change_tool(name);
+  log->info("compensation: a new wheel '{}' is fitted; its predicted wear starts from zero", name);
+  if (auto st = process::save_cell_bias(process::cell_bias_file(cell), cell_bias); !st) return st.error();
+  return json{{"tool", name}, {"wear_mm", 0.0}};
 }
 
 }  // namespace fettle::daemon

@@ -224,11 +224,25 @@ void Runtime::Impl::record_cycle(Cycle& c) {
     const auto v3 = [](const Vec3& v) { return json::array({v.x(), v.y(), v.z()}); };
     json comp{{"frame", "base"}, {"bias_commanded_mm", v3(c.cell_bias_mm)}, {"bias_now_mm", v3(cell_bias.bias_mm)},
               {"updates", cell_bias.updates}};
-    if (c.cut_offset && *c.cut_offset)
+    // each wheel's radius lost to wear: as the paths were planned, and as predicted now
+    comp["tool_wear_planned_mm"] = c.tool_wear_mm;
+    if (c.recipe) {
+      json now = json::object();
+      for (const auto& [name, w] : cell_bias.tool_wear(c.recipe->recipe))
+        now[name] = {{"least", w.least_mm}, {"expected", w.expected_mm}, {"most", w.most_mm}};
+      comp["tool_wear_now_mm"] = now;
+    }
+    comp["removed_cm3"] = c.removed_seen_cm3;
+    if (c.cut_offset && *c.cut_offset) {
       comp["measured"] = {{"offset_mm", v3((*c.cut_offset)->offset_mm)},
                           {"std_mm", v3((*c.cut_offset)->std_mm)},
                           {"points", (*c.cut_offset)->points},
                           {"directions_observed", (*c.cut_offset)->observed_directions()}};
+      json wear = json::object();
+      for (const auto& [name, w] : (*c.cut_offset)->tools)
+        wear[name] = {{"wear_mm", w.wear_mm}, {"std_mm", w.std_mm}, {"points", w.points}};
+      comp["measured"]["tool_wear_beyond_planned_mm"] = wear;
+    }
     else if (c.cut_offset)
       comp["not_measured"] = c.cut_offset->error().message;
     report["compensation"] = comp;

@@ -284,18 +284,22 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   vo.before = c.processed ? &c.processed->inspection : nullptr;
   const vision::Inspection* before = cell.compensation.enabled && c.regrinds.empty() ? vo.before : nullptr;
   auto offset = std::make_shared<std::optional<Result<process::CutOffset>>>();
+  auto removed = std::make_shared<std::map<std::string, double>>();
+  const bool seen = cell.compensation.enabled && vo.before != nullptr;
+  const auto wear = c.tool_wear_mm;
   // named, not a temporary in the co_await expression (see process_views)
   const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
-      [this, recipe, views_copy, ground, before, vo, offset](std::function<void(Result<VerificationResult>)> done) {
-        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, before, vo, offset, done] {
+      [this, recipe, views_copy, ground, before, vo, offset, wear, removed, seen](std::function<void(Result<VerificationResult>)> done) {
+        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, before, vo, offset, wear, removed, seen, done] {
           Result<VerificationResult> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
             out = processing->verify(*recipe, cell, *views_copy, *ground, vo);
             if (out && before != nullptr) {
               process::CutOffsetSettings cs;
               cs.min_points = static_cast<std::size_t>(cell.compensation.min_points);
-              *offset = process::measure_cut_offset(*recipe, *before, *ground, *out, cs);
+              *offset = process::measure_cut_offset(*recipe, *before, *ground, *out, wear, cs);
             }
+            if (out && seen) *removed = process::measure_removed_cm3(*recipe, *vo.before, *out);
           } catch (const std::exception& e) {
             out = Error{"pipeline.internal", e.what(), ErrorKind::internal};
           }
@@ -313,6 +317,7 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
     co_return std::nullopt;
   }
   if (*offset) c.cut_offset = std::move(*offset);
+  if (seen) c.removed_seen_cm3 = *removed;
   c.end();
   co_return std::move(r->value());
 }
@@ -395,12 +400,22 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
                   "recipe"});
     co_return;
   }
+  if (auto worn = worn_wheels(c)) {
+    fail(c, *worn);
+    co_return;
+  }
   if (!co_await scan(c, c.views, "capture")) co_return;
   ProcessOptions all_regions;
   if (cell.compensation.enabled) c.cell_bias_mm = cell_bias.bias_mm;
   c.placement = placement_uncertainty(cell.safety, cell.compensation.enabled ? cell_bias : process::CellBias{},
                                       cell.compensation);
   all_regions.cell_bias_mm = c.cell_bias_mm;
+  if (cell.compensation.enabled) {
+    c.tool_wear_mm = cell_bias.tool_wear_mm(c.recipe->recipe);
+    c.tool_wear_most_mm = cell_bias.tool_wear_most_mm(c.recipe->recipe);
+  }
+  all_regions.tool_wear_mm = c.tool_wear_mm;
+  all_regions.tool_wear_most_mm = c.tool_wear_most_mm;
   all_regions.placement_bound_mm2 = c.placement.bound_mm2;
   if (!c.placement.bound_mm2.isZero())
     log->info("cycle {}: every path keeps {} from the template (the stated accuracies less what the cell has learned)",
@@ -415,6 +430,7 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
   }
   if (!co_await grind(c, c.processed->trajectory, "")) co_return;
   if (!cell.cell.verification_scan) {
+    count_removal(c, &*c.processed, true);
     c.result = "OK";
     co_return;
   }
@@ -423,12 +439,18 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
   auto v = co_await verify_views(c, rescan);
   if (!v) co_return;
   log_verification(c, *v, "verification");
+  count_removal(c, nullptr, true);
   learn_bias(c);
   if (v->verdict == Verdict::regrind) {
     ProcessOptions po;
     po.regions = v->regrind_regions();
     po.cell_bias_mm = c.cell_bias_mm;
     po.placement_bound_mm2 = c.placement.bound_mm2;
+    // the wheels as worn after this cycle's grind (learn_bias counted it)
+    if (cell.compensation.enabled) {
+      po.tool_wear_mm = cell_bias.tool_wear_mm(c.recipe->recipe);
+      po.tool_wear_most_mm = cell_bias.tool_wear_most_mm(c.recipe->recipe);
+    }
     if (cell.compensation.enabled && c.cut_offset && *c.cut_offset) {
       // what this cycle's grind measured (process::regrind_compensation)
       const auto rc = process::regrind_compensation(cell.safety, cell_bias, c.cut_offset->value(), cell.compensation);
@@ -471,6 +493,7 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     if (!co_await scan(c, rescan, "rescan2")) co_return;
     v = co_await verify_views(c, rescan);
     if (!v) co_return;
+    count_removal(c, nullptr, false);
     log_verification(c, *v, "verification after the re-grind");
   }
   c.verification = std::move(v);

@@ -79,6 +79,8 @@ Result<json> Runtime::dry_cycle() {
   return json{{"cycle_id", i.cycle ? json(i.cycle->summary.id) : json(nullptr)}};
 }
 
+Result<json> Runtime::tool_changed(const std::string& tool) { return impl_->tool_changed(tool); }
+
 Status Runtime::maintenance_changing(bool on) {
   if (on && impl_->cycle && !impl_->cycle->dry)
     return Error{"fettled.busy", "a production cycle is running; enter maintenance mode when it ended"};

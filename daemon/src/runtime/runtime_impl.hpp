@@ -109,6 +109,14 @@ struct Cycle {
   /// what it has learned (process::placement_uncertainty; report.json "placement_bound_mm").
   process::PlacementUncertainty placement;
   std::optional<Result<process::CutOffset>> cut_offset;
+  /// [compensation]: each wheel's wear as predicted when the cycle was planned (its paths were
+  /// planned with the wheels that much smaller; report.json "compensation" "tool_wear_mm").
+  process::ToolWearMm tool_wear_mm;
+  process::ToolWearMm tool_wear_most_mm;
+  /// [compensation]: the iron each wheel removed in this cycle as the latest verification shows
+  /// it (process::measure_removed_cm3), and what of it the wheels' wear has counted.
+  std::map<std::string, double> removed_seen_cm3;
+  std::map<std::string, double> removed_counted_cm3;
   std::string result;  ///< "OK" / "NOK" when no fault
   json files = json::array();
   std::vector<std::string> warnings;
@@ -247,6 +255,16 @@ struct Runtime::Impl : std::enable_shared_from_this<Runtime::Impl> {
   /// or the tools changed), and its update from a cycle's measured cut offset.
   void load_cell_bias();
   void learn_bias(Cycle& c);
+  /// Counts what the cycle removed beyond what was counted (c.removed_seen_cm3, or without a
+  /// verification scan what `planned` was to remove) into each wheel's wear ([compensation]),
+  /// and saves it.
+  void count_removal(Cycle& c, const ProcessOutput* planned, bool first_grind);
+  /// The wheels a cycle like the last one would wear past their max_wear_mm: tool.worn.
+  [[nodiscard]] std::optional<Fault> worn_wheels(const Cycle& c) const;
+  /// Each recipe's first grind's removal in its last cycle (cm3 by tool name), for worn_wheels().
+  std::map<int, std::map<std::string, double>> last_removed_cm3;
+  /// A new wheel is fitted (control socket "tool_changed"): its predicted wear starts from zero.
+  Result<json> tool_changed(const std::string& name);
   [[nodiscard]] std::string bias_identity_calibration() const;
   [[nodiscard]] std::string bias_identity_tools() const;
   asio::awaitable<void> sleep(milliseconds d);

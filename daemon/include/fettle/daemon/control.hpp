@@ -81,6 +81,12 @@ class Handler {
   /// (e.g. {"cycle_id":"..."}), the result shows later in last_cycle/cycles.
   virtual Result<json> dry_cycle() = 0;
 
+  /// A new wheel of the named tool is fitted (a tool.worn fault asks for it). Only called in
+  /// maintenance mode. Default: refused (a daemon that predicts no wear).
+  virtual Result<json> tool_changed(const std::string& tool) {
+    return Error{"control.unsupported", "this daemon keeps no wheel wear; nothing to reset for '" + tool + "'"};
+  }
+
   /// Maintenance mode is about to change; return an Error to refuse (e.g. entering it
   /// during Execute). The Server keeps the flag. Default: accept.
   virtual Status maintenance_changing(bool on) {

@@ -40,6 +40,7 @@ enum class FaultCode : std::uint16_t {
   spindle_fault = 401,        ///< drive fault (EMCY, fault statusword, heartbeat lost)
   spindle_timeout = 402,      ///< not at speed / not stopped in time
   spindle_unavailable = 403,  ///< the drive cannot be configured
+  tool_worn = 404,            ///< a wheel is predicted worn past its [[tools]] max_wear_mm
   // Part, vision, planning (5xx)
   empty_fixture = 501,
   wrong_part = 502,

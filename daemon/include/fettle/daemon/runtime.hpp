@@ -107,6 +107,7 @@ class Runtime : public control::Handler {
   Result<control::json> hold() override;
   Result<control::json> unhold() override;
   Result<control::json> dry_cycle() override;
+  Result<control::json> tool_changed(const std::string& tool) override;
   Status maintenance_changing(bool on) override;
 
   struct Impl;
