@@ -22,10 +22,21 @@ struct Args {
   int timeout_ms = 5000;
 };
 
+/// Changing a wheel is maintenance: the command switches maintenance mode on for it when it is
+/// off (fettled refuses that during a production cycle) and off again afterwards.
 int changed(const Args& a) {
-  const auto socket = fettle::daemon::control::socket_for_cli(a.socket, a.config);
-  (void)fettle::daemon::control::cli_request(socket, json{{"cmd", "tool_changed"}, {"tool", a.tool}},
-                                             std::chrono::milliseconds{a.timeout_ms});
+  namespace control = fettle::daemon::control;
+  const auto socket = control::socket_for_cli(a.socket, a.config);
+  const std::chrono::milliseconds timeout{a.timeout_ms};
+  const bool was_on = control::cli_request(socket, json{{"cmd", "maintenance"}}, timeout).value("maintenance", false);
+  if (!was_on) (void)control::cli_request(socket, json{{"cmd", "maintenance"}, {"on", true}}, timeout);
+  try {
+    (void)control::cli_request(socket, json{{"cmd", "tool_changed"}, {"tool", a.tool}}, timeout);
+  } catch (...) {
+    if (!was_on) (void)control::cli_request(socket, json{{"cmd", "maintenance"}, {"on", false}}, timeout);
+    throw;
+  }
+  if (!was_on) (void)control::cli_request(socket, json{{"cmd", "maintenance"}, {"on", false}}, timeout);
   std::cout << "fettled: a new wheel '" << a.tool << "' is fitted; its predicted wear starts from zero\n";
   return fettle::exit_code::ok;
 }
@@ -35,7 +46,7 @@ FETTLE_COMMAND("tool", [](CLI::App& app, const fettle::cli::Common&) {
   auto* tool = app.add_subcommand("tool", "The grinding wheels (wear, changes)");
   tool->require_subcommand(1);
   auto* cmd = tool->add_subcommand(
-      "changed", "Tell fettled a new wheel is fitted (after a tool.worn fault; maintenance mode only)");
+      "changed", "Tell fettled a new wheel is fitted (after a tool.worn fault; in maintenance mode for the change)");
   cmd->add_option("name", args->tool, "The tool's name in the recipe's [[tools]]")->required();
   auto* socket = cmd->add_option("--socket", args->socket, "Control socket (default: /run/fettle/fettled.sock)");
   cmd->add_option("--config", args->config, "Cell file whose [control] socket to use")->excludes(socket);

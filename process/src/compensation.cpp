@@ -85,9 +85,18 @@ ToolIndex commanded_tools(const LoadedRecipe& loaded, const std::vector<Trajecto
 /// not only pass by a surface it left as it was).
 class HeightColumns {
  public:
-  HeightColumns(const vision::Inspection& before, double cell) : cell_(cell) {
+  /// From the first scan's points (part frame), those in `roi`'s box only when given.
+  HeightColumns(const vision::Inspection& before, double cell, const config::Region* roi = nullptr) : cell_(cell) {
     const Eigen::Isometry3f T = before.whole.T_scene_template.cast<float>();
-    for (const auto& p : before.scene_part.points) add((T * p).cast<double>());
+    Eigen::Vector3f lo = Eigen::Vector3f::Constant(-1e30f), hi = Eigen::Vector3f::Constant(1e30f);
+    if (roi != nullptr)
+      for (int k = 0; k < 3; ++k) {
+        const auto c = static_cast<float>(roi->roi_center_mm[static_cast<std::size_t>(k)]);
+        const auto h = static_cast<float>(0.5 * roi->roi_size_mm[static_cast<std::size_t>(k)]);
+        lo[k] = c - h, hi[k] = c + h;
+      }
+    for (const auto& p : before.scene_part.points)
+      if ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all()) add((T * p).cast<double>());
   }
   /// No scan: columns from add().
   HeightColumns(std::nullptr_t, double cell) : cell_(cell) {}
@@ -112,6 +121,16 @@ class HeightColumns {
     return static_cast<double>(it->second.z) - q.z();
   }
   [[nodiscard]] bool empty() const { return top_.empty(); }
+  /// The highest point of q's column and its eight neighbours (nullopt: none seen there).
+  [[nodiscard]] std::optional<double> top_near(const Vec3& q) const {
+    std::optional<double> out;
+    for (int dy = -1; dy <= 1; ++dy)
+      for (int dx = -1; dx <= 1; ++dx) {
+        const auto it = top_.find(key(q.x() + dx * cell_, q.y() + dy * cell_));
+        if (it != top_.end() && (!out || it->second.z > *out)) out = it->second.z;
+      }
+    return out;
+  }
 
  private:
   [[nodiscard]] std::int64_t key(double x, double y) const {
@@ -184,11 +203,13 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(samples.size()) +
                                             " re-scanned points near the commanded tool surface where material was "
                                             "removed (at least " + std::to_string(settings.min_points) + ")"};
-  // The unknowns: the offset b (3) and one radius loss per tool whose radius the cut surfaces
-  // show apart from b (a column each): what is left of the tool's column's information once b
-  // is fitted must be at least kSeparableShare of it. A groove's bottom, cut by a ball, looks
-  // up: its radius and the offset's height move it alike, and the column is left out (the
-  // offset takes it); a disc's side round a ring or a ball beside a flat end's face is kept.
+  // The unknowns: the offset b (3) and one radius loss per tool whose own cut surfaces show its
+  // radius apart from b (a column each): on that tool's surfaces alone, what is left of its
+  // column's information once b is fitted must be at least kSeparableShare of it. A groove's
+  // bottom, cut by a ball, looks up: its radius and the offset's height move it alike, and the
+  // column is left out (the offset takes it). Another tool's surfaces elsewhere do not tell it
+  // apart: the offset there is not the offset here (a hand-eye rotation of 0.05 deg moves the
+  // cut 0.09 mm over the part's 100 mm). A disc's side round a ring shows its radius.
   const auto& recipe_tools = loaded.recipe.tools;
   std::vector<int> column(recipe_tools.size(), -1);
   int n = 3;
@@ -202,19 +223,18 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     std::vector<bool> keep(recipe_tools.size());
     for (std::size_t t = 0; t < recipe_tools.size(); ++t)
       keep[t] = radial_weight[t] >= static_cast<double>(settings.min_points);
-    renumber(keep);
-    Eigen::MatrixXd N = Eigen::MatrixXd::Zero(n, n);
-    for (const auto& s : samples) {
-      Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
-      a.head<3>() = s.n;
-      if (column[s.tool] >= 0) a(column[s.tool]) = -s.radial;
-      N.noalias() += a * a.transpose();
-    }
-    const double ridge = 1e-6 * std::max(1.0, N.trace() / n);
-    const Eigen::MatrixXd inv = (N + ridge * Eigen::MatrixXd::Identity(n, n)).ldlt().solve(Eigen::MatrixXd::Identity(n, n));
     for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
-      const int c = column[t];
-      if (c >= 0 && !(1.0 / inv(c, c) >= kSeparableShare * N(c, c))) keep[t] = false;
+      if (!keep[t]) continue;
+      Eigen::Matrix4d N = Eigen::Matrix4d::Zero();  // (b, w_t) on tool t's samples
+      for (const auto& s : samples) {
+        if (s.tool != t) continue;
+        Eigen::Vector4d a;
+        a << s.n, -s.radial;
+        N.noalias() += a * a.transpose();
+      }
+      const double ridge = 1e-6 * std::max(1.0, N.trace() / 4.0);
+      const Eigen::Matrix4d inv = (N + ridge * Eigen::Matrix4d::Identity()).inverse();
+      keep[t] = 1.0 / inv(3, 3) >= kSeparableShare * N(3, 3);
     }
     renumber(keep);
   }
@@ -356,22 +376,31 @@ std::map<std::string, double> removed_cm3(const LoadedRecipe& loaded, const Proc
 std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& loaded, const vision::Inspection& before,
                                                   const VerificationResult& after, const CutOffsetSettings& settings) {
   std::map<std::string, double> out;
-  const HeightColumns first_scan(before, settings.column_mm);
-  if (first_scan.empty()) return out;
   const double area = settings.column_mm * settings.column_mm;
   for (const auto& r : after.regions) {
     const auto& regions = loaded.recipe.regions;
     const auto region = std::find_if(regions.begin(), regions.end(), [&](const config::Region& x) { return x.name == r.name; });
     if (region == regions.end()) continue;
+    // the first scan within the same ROI: a feature above the ROI's box is not iron removed
+    const HeightColumns first_scan(before, settings.column_mm, &*region);
+    if (first_scan.empty()) continue;
     // the re-scan's surface over each column: its highest point there
     HeightColumns rescan(nullptr, settings.column_mm);
     const Eigen::Isometry3d T = r.T_base_region;
     for (const auto& p : r.roi_points_part) rescan.add(T * p.cast<double>());
+    // against the re-scan's highest point over the column and its neighbours: beside a wall a
+    // column may hold the wall's top in one scan and not in the other, which is no iron removed
     double mm3 = 0.0;
     rescan.for_each([&](const Vec3& top) {
-      const auto removed = first_scan.removed_above(top);
+      const auto near = rescan.top_near(top);
+      const auto removed = first_scan.removed_above(Vec3(top.x(), top.y(), near.value_or(top.z())));
       if (removed && *removed >= settings.removed_min_mm) mm3 += *removed * area;
     });
+    // at most the excess the first inspection found along the template's normals: a fin that
+    // stands out from a wall overhangs air, which a column seen from above counts as iron
+    const auto first = std::find_if(before.regions.begin(), before.regions.end(),
+                                    [&](const vision::RegionResult& x) { return x.name == r.name; });
+    if (first != before.regions.end()) mm3 = std::min(mm3, first->excess.volume_mm3);
     out[region->tool] += mm3 / 1000.0;
   }
   return out;

@@ -651,6 +651,40 @@ TEST_F(Fettled, C_SigtermAndSigkillMidCycle) {
 // D: the attack surface of a running, connected fettled (docs/security.md): no TCP port listens,
 // every TCP connection goes to a configured peer (PLC, robot, socketcand), and the camera's UDP
 // sockets are bound to the camera's network (127.0.0.1 here), not to every interface.
+// E: a wheel the cell predicts worn past its life stops the cycle before the scan with tool.worn
+// (404, Held); `fettle tool changed` fits a new one and the next cycle grinds (docs/compensation.md,
+// "Wheel wear"). The state file fettled starts from says the cup wheel removed 60 cm3: up to
+// 1.3 x 0.05 x 60 = 3.9 mm of its radius, past its 3 mm life.
+TEST_F(Fettled, E_AWornWheelStopsTheCellUntilANewOneIsFitted) {
+  ASSERT_TRUE(wait_until(answers, 300s)) << tail_log();  // the first start builds the planning grid
+  ASSERT_EQ(::kill(pid_, SIGTERM), 0);
+  ASSERT_TRUE(wait_exit(60s).has_value());
+  const auto state_file = dir_ / "state/compensation.json";
+  const nlohmann::json worn = {{"bias_mm", {0.0, 0.0, 0.0}}, {"updates", 0}, {"tools", {{"flat-16", {{"removed_cm3", 60.0}}}}}};
+  std::ofstream(state_file) << worn.dump(2);
+  spawn_fettled(true);
+  ASSERT_TRUE(wait_until(answers, 120s)) << tail_log();
+  ASSERT_TRUE(to_execute());
+  cell_->load(7);
+  cell_->request();
+  expect_fault(404, State::held);
+  EXPECT_NE(read_text(dir_ / "fettled.log").find("wheel 'flat-16' is worn"), std::string::npos) << tail_log();
+  const std::string socket = (dir_ / "fettled.sock").string();
+  const auto out = run_output((kBin / "fettle").string() + " tool changed flat-16 --socket " + socket + " 2>&1");
+  EXPECT_NE(out.find("a new wheel 'flat-16' is fitted"), std::string::npos) << out;
+  const auto unknown = run_output((kBin / "fettle").string() + " tool changed flat-61 --socket " + socket + " 2>&1");
+  EXPECT_NE(unknown.find("flat-61"), std::string::npos) << unknown;
+  const auto state = nlohmann::json::parse(read_text(state_file));
+  EXPECT_EQ(state["tools"]["flat-16"].value("removed_cm3", -1.0), 0.0) << state.dump();
+  EXPECT_EQ(state["tools"]["flat-16"].value("changes", 0), 1) << state.dump();
+  ASSERT_TRUE(to_execute());
+  ASSERT_TRUE(good_cycle(7)) << tail_log();
+  EXPECT_EQ(fault_code(), 0) << tail_log();
+  // the new wheel counts the iron this cycle removed
+  const auto after = nlohmann::json::parse(read_text(state_file));
+  EXPECT_GT(after["tools"]["flat-16"].value("removed_cm3", 0.0), 1.0) << after.dump();
+}
+
 TEST_F(Fettled, D_ListensOnNoTcpPortAndTalksOnlyToItsConfiguredPeers) {
   ASSERT_TRUE(wait_until(answers, 300s)) << tail_log();
   ASSERT_TRUE(to_execute());  // every link is up

@@ -258,6 +258,8 @@ fp::LoadedRecipe disc_recipe() {
   fettle::config::Region region;
   region.name = "ring";
   region.tool = "chamfer-disc";
+  region.roi_center_mm = {0.0, 0.0, 5.0};
+  region.roi_size_mm = {200.0, 200.0, 20.0};
   r.recipe.regions.push_back(region);
   return r;
 }
@@ -387,11 +389,30 @@ TEST(Compensation, TheIronRemovedIsWhatTheReScanLacksAgainstTheFirstScan) {
       before.scene_part.points.emplace_back(static_cast<float>(x), static_cast<float>(y), 5.0f);
       rv.roi_points_part.emplace_back(static_cast<float>(x), static_cast<float>(y), y < 10.0 ? 2.0f : 4.95f);
     }
+  // a 8 mm step both scans see, the re-scan without the top's last 0.5 mm (a wall's top edge one
+  // scan samples and the other does not): no iron removed
+  for (double x = 30.05; x < 40.0; x += 0.1)
+    for (double y = 0.05; y < 20.0; y += 0.1) {
+      before.scene_part.points.emplace_back(static_cast<float>(x), static_cast<float>(y), x < 35.0 ? 10.0f : 2.0f);
+      rv.roi_points_part.emplace_back(static_cast<float>(x), static_cast<float>(y), x < 34.5 ? 10.0f : 2.0f);
+    }
+  // and a feature above the ROI's box (z 15-20) over part of it, which the re-scan's ROI leaves out
+  for (double x = 0.05; x < 5.0; x += 0.1)
+    for (double y = 0.05; y < 20.0; y += 0.1)
+      before.scene_part.points.emplace_back(static_cast<float>(x), static_cast<float>(y), 18.0f);
   after.regions.push_back(rv);
   const auto removed = fp::measure_removed_cm3(recipe, before, after);
   ASSERT_EQ(removed.count("chamfer-disc"), 1u);
-  // 3 mm x 200 mm2 = 0.6 cm3, to within the columns cut by the 0.6 mm grid at the edges
-  EXPECT_NEAR(removed.at("chamfer-disc"), 0.6, 0.02);
+  // 3 mm x 200 mm2 = 0.6 cm3 less the row of 0.6 mm columns along the edge to the unground face,
+  // whose neighbours hold that face (0.55 cm3); the step adds nothing (0.1 cm3 if it did)
+  EXPECT_NEAR(removed.at("chamfer-disc"), 0.575, 0.03);
+  // a fin standing out from a wall: the first inspection found 0.3 cm3 along the template's
+  // normals where the columns see 3 mm of air under it
+  fettle::vision::RegionResult fin;
+  fin.name = "ring";
+  fin.excess.volume_mm3 = 300.0;
+  before.regions.push_back(fin);
+  EXPECT_NEAR(fp::measure_removed_cm3(recipe, before, after).at("chamfer-disc"), 0.3, 1e-9);
 }
 
 }  // namespace

@@ -82,9 +82,12 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& recipe, const vision::I
 std::map<std::string, double> removed_cm3(const LoadedRecipe& recipe, const ProcessOutput& processed);
 /// The iron each tool removed (cm3 by tool name), seen from above: over each region's
 /// re-scanned ROI, by how much the re-scan's surface lies below the first scan's, column by
-/// column (base-frame x-y columns of column_mm; a column counts from removed_min_mm down,
-/// beneath that is the scanner's noise). The casting's form deviation is in both scans and
-/// drops out.
+/// column (base-frame x-y columns of column_mm, the re-scan's surface the highest over the
+/// column and its neighbours; a column counts from removed_min_mm down, beneath that is the
+/// scanner's noise). The casting's form deviation is in both scans and drops out. At most the
+/// region's excess volume in `before` (the template's normals): a fin standing out from a wall
+/// overhangs air that a column counts as iron, while the excess counts the form deviation;
+/// each is a bound the other is not.
 std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& recipe, const vision::Inspection& before,
                                                   const VerificationResult& after, const CutOffsetSettings& settings = {});
 
