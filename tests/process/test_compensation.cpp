@@ -46,13 +46,23 @@ struct Cut {
   fp::VerificationResult after;
 };
 
-Cut grooves(const Vec3& offset, bool cross, double noise_mm, unsigned seed) {
+/// What a synthetic cut of `region` starts from: its commanded trajectory and re-scanned ROI
+/// (empty), and the re-scan's noise of sigma noise_mm drawn from `seed`.
+struct CutStart {
   Cut c;
-  c.commanded.segment_regions = {"groove"};
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> n(0.0, noise_mm);
   fp::RegionVerification rv;
-  rv.name = "groove";
+  std::mt19937 rng;
+  std::normal_distribution<double> n;
+  CutStart(const std::string& region, double noise_mm, unsigned seed) : rng(seed), n(0.0, noise_mm) {
+    c.commanded.segment_regions = {region};
+    rv.name = region;
+  }
+};
+
+Cut grooves(const Vec3& offset, bool cross, double noise_mm, unsigned seed) {
+  CutStart s("groove", noise_mm, seed);
+  Cut& c = s.c;
+  fp::RegionVerification& rv = s.rv;
   auto pose = [&](const Vec3& tip) {
     fettle::TrajectoryPoint p;
     p.T_base_tool.position_mm = tip;
@@ -66,7 +76,7 @@ Cut grooves(const Vec3& offset, bool cross, double noise_mm, unsigned seed) {
         const double th = k * 5.0 * M_PI / 180.0;  // up to 60 deg either side of the bottom
         const Vec3 centre = start + i * along + Vec3(0, 0, kRadius) + offset;
         const Vec3 q = centre + kRadius * (std::sin(th) * across - std::cos(th) * Vec3::UnitZ());
-        rv.roi_points_part.push_back((q + Vec3(0, 0, n(rng))).cast<float>());
+        rv.roi_points_part.push_back((q + Vec3(0, 0, s.n(s.rng))).cast<float>());
       }
   };
   groove(Vec3::UnitX(), Vec3::UnitY(), Vec3(-20, 0, 0));
@@ -268,12 +278,9 @@ fp::LoadedRecipe disc_recipe() {
 /// (tip at z = 0), and the re-scan shows the wall it left where the disc really was (offset)
 /// with its real radius (commanded less `wear`), facing the ring's centre.
 Cut ring_wall(const Vec3& offset, double wear, double noise_mm, unsigned seed) {
-  Cut c;
-  c.commanded.segment_regions = {"ring"};
-  std::mt19937 rng(seed);
-  std::normal_distribution<double> n(0.0, noise_mm);
-  fp::RegionVerification rv;
-  rv.name = "ring";
+  CutStart s("ring", noise_mm, seed);
+  Cut& c = s.c;
+  fp::RegionVerification& rv = s.rv;
   const double R = 20.0 - wear;
   for (int i = 0; i < 360; ++i) {
     const double a = i * M_PI / 180.0;
@@ -283,7 +290,7 @@ Cut ring_wall(const Vec3& offset, double wear, double noise_mm, unsigned seed) {
     p.kind = fettle::MoveKind::grind;
     c.commanded.points.push_back(p);
     for (double z = 1.0; z <= 5.0; z += 1.0) {
-      const Vec3 q = 50.0 * u + offset - R * u + Vec3(0, 0, z) + n(rng) * u;
+      const Vec3 q = 50.0 * u + offset - R * u + Vec3(0, 0, z) + s.n(s.rng) * u;
       rv.roi_points_part.push_back(q.cast<float>());
       // the fin stood 3 mm higher over the same place
       c.before.scene_part.points.emplace_back(static_cast<float>(q.x()), static_cast<float>(q.y()), 9.0f);
