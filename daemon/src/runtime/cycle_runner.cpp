@@ -232,14 +232,21 @@ void Runtime::Impl::report_process_error(Cycle& c, const Error& e, std::string* 
 asio::awaitable<std::optional<ProcessOutput>> Runtime::Impl::process_views(Cycle& c, const std::vector<View>& views,
                                                                            const ProcessOptions& process_options,
                                                                            const char* name, std::string* part_error) {
-  const ProcessOptions po = process_options;
+  ProcessOptions po = process_options;
   c.begin(name);
   publish_state();
   auto recipe = c.recipe;
   auto views_copy = std::make_shared<const std::vector<View>>(views);
+  // The worker may outlive the cycle (a timeout, an abort): what the options point to (a
+  // re-grind's first inspection and plans, in the cycle) is copied and lives as long as it.
+  auto before = po.before != nullptr ? std::make_shared<const vision::Inspection>(*po.before) : nullptr;
+  auto before_plans =
+      po.before_plans != nullptr ? std::make_shared<const std::vector<planning::RegionPlan>>(*po.before_plans) : nullptr;
+  po.before = before.get();
+  po.before_plans = before_plans.get();
   const std::function<void(std::function<void(Result<ProcessOutput>)>)> start =
-      [this, recipe, views_copy, po](std::function<void(Result<ProcessOutput>)> done) {
-        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, po, done] {
+      [this, recipe, views_copy, po, before, before_plans](std::function<void(Result<ProcessOutput>)> done) {
+        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, po, before, before_plans, done] {
           Result<ProcessOutput> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
             out = processing->process(*recipe, cell, *views_copy, po);
@@ -279,9 +286,10 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   // Every verification of the cycle judges the casting against its own faces as the first scan
   // found them (process::VerifyOptions); with [compensation] the first one also measures where
   // the tool cut against where it was told (the first inspection says where material was). The
-  // cycle's coroutine waits, so c.processed stays put while the worker reads it.
+  // worker may outlive the cycle (a timeout, an abort): it gets its own copy of that inspection.
+  auto first = c.processed ? std::make_shared<const vision::Inspection>(c.processed->inspection) : nullptr;
   process::VerifyOptions vo;
-  vo.before = c.processed ? &c.processed->inspection : nullptr;
+  vo.before = first.get();
   const vision::Inspection* before = cell.compensation.enabled && c.regrinds.empty() ? vo.before : nullptr;
   auto offset = std::make_shared<std::optional<Result<process::CutOffset>>>();
   auto removed = std::make_shared<std::map<std::string, double>>();
@@ -289,8 +297,10 @@ asio::awaitable<std::optional<VerificationResult>> Runtime::Impl::verify_views(C
   const auto wear = c.tool_wear_mm;
   // named, not a temporary in the co_await expression (see process_views)
   const std::function<void(std::function<void(Result<VerificationResult>)>)> start =
-      [this, recipe, views_copy, ground, before, vo, offset, wear, removed, seen](std::function<void(Result<VerificationResult>)> done) {
-        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, before, vo, offset, wear, removed, seen, done] {
+      [this, recipe, views_copy, ground, first, before, vo, offset, wear, removed, seen](
+          std::function<void(Result<VerificationResult>)> done) {
+        asio::post(workers, [this, self = shared_from_this(), recipe, views_copy, ground, first, before, vo, offset, wear,
+                             removed, seen, done] {
           Result<VerificationResult> out = Error{"pipeline.internal", "not run", ErrorKind::internal};
           try {
             out = processing->verify(*recipe, cell, *views_copy, *ground, vo);
