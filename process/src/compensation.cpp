@@ -424,7 +424,11 @@ double ToolWear::rate_tolerance(const config::Tool& tool) const {
 WearRange ToolWear::wear(const config::Tool& tool, double more_cm3) const {
   const double v = removed_cm3 + std::max(0.0, more_cm3);
   const double r = rate_mm_per_cm3(tool), tol = rate_tolerance(tool);
-  return WearRange{std::max(0.0, (1.0 - tol) * r * v), r * v, (1.0 + tol) * r * v};
+  // The least is what the wheel surely lost, and only a measured rate says so: a stated one
+  // may not hold for this wheel at all (one that wears less than its maker says, planned
+  // smaller than it is, is moved into the wall: test Trial.TheCellLearnsAPathBias*).
+  const bool measured = measurements >= kMinWearMeasurements && sum_vv > 0.0;
+  return WearRange{measured ? std::max(0.0, (1.0 - tol) * r * v) : 0.0, r * v, (1.0 + tol) * r * v};
 }
 
 std::map<std::string, WearRange> CellBias::tool_wear(const config::PartRecipe& recipe) const {

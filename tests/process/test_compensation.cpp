@@ -349,7 +349,7 @@ TEST(Compensation, AWheelsWearIsPredictedFromTheIronItRemovedAtItsMeasuredRate) 
     const auto w = bias.tool_wear(recipe).at("chamfer-disc");
     if (cycle < 3) {
       EXPECT_NEAR(w.expected_mm, 0.05 * 4.0 * cycle, 1e-12);
-      EXPECT_NEAR(w.least_mm, 0.7 * w.expected_mm, 1e-12);
+      EXPECT_DOUBLE_EQ(w.least_mm, 0.0);  // a stated rate may not hold for this wheel at all
       EXPECT_NEAR(w.most_mm, 1.3 * w.expected_mm, 1e-12);
     }
     if (cycle == 2) {  // at most 1.3 x 0.05 x 12 = 0.78 mm after one more casting: within its life

@@ -96,8 +96,9 @@ std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& recipe, co
 /// rate those measurements fit (through the origin: wear = rate x removed). The rate is the
 /// wheel's kind's, kept when a worn wheel is changed for a new one.
 /// A wheel's radius lost to wear: the least, the expected and the most it may be. The cell plans
-/// with the least (a wheel planned smaller than it is would be moved into the wall), closes a
-/// riser's rows up for the most and asks for a new wheel when the most passes its life.
+/// with the least (a wheel planned smaller than it is would be moved into the wall; 0 until the
+/// wheel's own rate is measured), closes a riser's rows up for the most and asks for a new wheel
+/// when the most passes its life.
 struct WearRange {
   double least_mm = 0.0;
   double expected_mm = 0.0;
