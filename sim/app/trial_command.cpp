@@ -658,8 +658,8 @@ int trial(const Args& a) {
         changes.push_back({{"tool", name},
                            {"predicted_wear_mm", {{"least", w.least_mm}, {"expected", w.expected_mm}, {"most", w.most_mm}}},
                            {"true_wear_mm", worn_mm[name]}});
-        std::fprintf(stderr, ", new wheel %s (worn %.2f mm, predicted %.2f-%.2f)", name.c_str(), worn_mm[name],
-                     w.least_mm, w.most_mm);
+        std::fprintf(stderr, ", new wheel %s (worn %.2f mm, predicted %.2f, at most %.2f)", name.c_str(), worn_mm[name],
+                     w.expected_mm, w.most_mm);
         worn_mm[name] = 0.0;
         cell_bias.change_tool(name);
       }
