@@ -363,11 +363,10 @@ std::map<std::string, double> removed_cm3(const LoadedRecipe& loaded, const Proc
   std::map<std::string, double> out;
   for (const auto& plan : processed.plans) {
     if (plan.points.empty()) continue;
-    const auto& regions = loaded.recipe.regions;
-    const auto r = std::find_if(regions.begin(), regions.end(), [&](const config::Region& x) { return x.name == plan.region; });
+    const config::Region* r = loaded.region(plan.region);
     const auto m = std::find_if(processed.regions.begin(), processed.regions.end(),
                                 [&](const RegionMetrics& x) { return x.name == plan.region; });
-    if (r == regions.end() || m == processed.regions.end()) continue;
+    if (r == nullptr || m == processed.regions.end()) continue;
     out[r->tool] += m->excess_volume_mm3 / 1000.0;
   }
   return out;
@@ -378,11 +377,10 @@ std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& loaded, co
   std::map<std::string, double> out;
   const double area = settings.column_mm * settings.column_mm;
   for (const auto& r : after.regions) {
-    const auto& regions = loaded.recipe.regions;
-    const auto region = std::find_if(regions.begin(), regions.end(), [&](const config::Region& x) { return x.name == r.name; });
-    if (region == regions.end()) continue;
+    const config::Region* region = loaded.region(r.name);
+    if (region == nullptr) continue;
     // the first scan within the same ROI: a feature above the ROI's box is not iron removed
-    const HeightColumns first_scan(before, settings.column_mm, &*region);
+    const HeightColumns first_scan(before, settings.column_mm, region);
     if (first_scan.empty()) continue;
     // the re-scan's surface over each column: its highest point there
     HeightColumns rescan(nullptr, settings.column_mm);
@@ -406,14 +404,16 @@ std::map<std::string, double> measure_removed_cm3(const LoadedRecipe& loaded, co
   return out;
 }
 
+bool ToolWear::rate_measured() const { return measurements >= kMinWearMeasurements && sum_vv > 0.0; }
+
 double ToolWear::rate_mm_per_cm3(const config::Tool& tool) const {
-  return measurements >= kMinWearMeasurements && sum_vv > 0.0 ? std::max(0.0, sum_wv / sum_vv) : tool.wear_mm_per_cm3;
+  return rate_measured() ? std::max(0.0, sum_wv / sum_vv) : tool.wear_mm_per_cm3;
 }
 
 double ToolWear::rate_tolerance(const config::Tool& tool) const {
   const double stated = std::clamp(tool.wear_tolerance_pct / 100.0, 0.0, 1.0);
   const double rate = rate_mm_per_cm3(tool);
-  if (measurements < kMinWearMeasurements || sum_vv <= 0.0 || rate <= 0.0) return stated;
+  if (!rate_measured() || rate <= 0.0) return stated;
   // the fit w = r V through the origin: its residuals' variance over the removal's spread
   const double r = sum_wv / sum_vv;
   const double residual2 = std::max(0.0, sum_ww - 2.0 * r * sum_wv + r * r * sum_vv);
@@ -427,8 +427,7 @@ WearRange ToolWear::wear(const config::Tool& tool, double more_cm3) const {
   // The least is what the wheel surely lost, and only a measured rate says so: a stated one
   // may not hold for this wheel at all (one that wears less than its maker says, planned
   // smaller than it is, is moved into the wall: test Trial.TheCellLearnsAPathBias*).
-  const bool measured = measurements >= kMinWearMeasurements && sum_vv > 0.0;
-  return WearRange{measured ? std::max(0.0, (1.0 - tol) * r * v) : 0.0, r * v, (1.0 + tol) * r * v};
+  return WearRange{rate_measured() ? std::max(0.0, (1.0 - tol) * r * v) : 0.0, r * v, (1.0 + tol) * r * v};
 }
 
 std::map<std::string, WearRange> CellBias::tool_wear(const config::PartRecipe& recipe) const {

@@ -62,9 +62,9 @@ void for_each_tool_pose(const LoadedRecipe& loaded, const std::vector<Trajectory
       const auto& p = traj.points[i];
       if (!air && p.kind == MoveKind::air) continue;
       const std::string name = traj.region_of(p);
-      const auto it = std::find_if(regions.begin(), regions.end(), [&](const config::Region& r) { return r.name == name; });
-      if (it == regions.end()) continue;
-      const auto region = static_cast<std::size_t>(it - regions.begin());
+      const config::Region* it = loaded.region(name);
+      if (it == nullptr) continue;
+      const auto region = static_cast<std::size_t>(it - regions.data());
       const auto& tool = loaded.tool_for(*it);
       if (i > 0 && (air || traj.points[i - 1].kind != MoveKind::air))
         planning::for_each_move_sample(traj.points[i - 1].T_base_tool, p.T_base_tool, [&](const Pose& m) {

@@ -128,9 +128,7 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
   const auto t_start = Clock::now();
   const auto& recipe = loaded.recipe;
   for (const auto& name : options.regions) {
-    const bool known = std::any_of(recipe.regions.begin(), recipe.regions.end(),
-                                   [&](const config::Region& r) { return r.name == name; });
-    if (!known) return Error{"pipeline.input", "no region named '" + name + "' in recipe " + recipe.id};
+    if (loaded.region(name) == nullptr) return Error{"pipeline.input", "no region named '" + name + "' in recipe " + recipe.id};
   }
   const std::size_t total = 3 + recipe.regions.size();
   ProcessOutput out;

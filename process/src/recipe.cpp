@@ -83,6 +83,12 @@ config::Tool worn_tool(const config::Tool& tool, const ToolWearMm& wear) {
   return out;
 }
 
+const config::Region* LoadedRecipe::region(const std::string& name) const {
+  for (const auto& r : recipe.regions)
+    if (r.name == name) return &r;
+  return nullptr;
+}
+
 const config::Tool& LoadedRecipe::tool_for(const config::Region& region) const {
   for (const auto& t : recipe.tools)
     if (t.name == region.tool) return t;

@@ -112,6 +112,8 @@ struct ToolWear {
   double sum_ww = 0.0;           ///< measured wear squared, summed (the fit's scatter)
   std::size_t measurements = 0;  ///< cycles whose cut showed the radius
   std::size_t changes = 0;       ///< wheels changed for new ones
+  /// Whether the wheel's own rate is measured (its cut has shown the radius often enough).
+  [[nodiscard]] bool rate_measured() const;
   /// mm of radius per cm3: the measured rate, else the tool's stated one.
   [[nodiscard]] double rate_mm_per_cm3(const config::Tool& tool) const;
   /// The rate's relative uncertainty (two sigma of its fit from kMinWearMeasurements on, else

@@ -90,6 +90,8 @@ struct LoadedRecipe {
 
   /// The [[tools]] entry of a region (validated by the loader to exist).
   [[nodiscard]] const config::Tool& tool_for(const config::Region& region) const;
+  /// The [[regions]] entry named `name`, or nullptr.
+  [[nodiscard]] const config::Region* region(const std::string& name) const;
 };
 
 /// Where the golden file of a recipe is expected (see the header comment).
