@@ -334,7 +334,7 @@ std::vector<RegionTruth> CastingModel::truth() const {
           height = std::max(height, std::hypot(m.cx(i) - m.axis_center.x(), m.cy(j) - m.axis_center.y()) +
                                         0.5 * m.pitch - m.base_radius_mm);
         } else {
-          const double top = nominal_top(m.cx(i), m.cy(j));
+          const double top = own_top(m.cx(i), m.cy(j));
           height = std::max(height, static_cast<double>(m.z1[k]) - (std::isnan(top) ? 0.0 : top));
         }
       }
@@ -589,7 +589,7 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
         }
         if (in_gap) continue;
         const double z0 = f.parting_z_mm - 0.5 * t, z1 = f.parting_z_mm + 0.5 * t;
-        const double floor_z = m->nominal_top(mat.cx(i), mat.cy(j));
+        const double floor_z = m->own_top(mat.cx(i), mat.cy(j));
         const auto k = mat.index(i, j);
         mat.z0[k] = static_cast<float>(std::isnan(floor_z) ? z0 : std::max(z0, floor_z));
         mat.z1[k] = static_cast<float>(z1);
@@ -606,13 +606,13 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
     const std::uint64_t noise_seed = fr.next();
     if (golden) continue;
     const double cx = f.center_mm[0], cy = f.center_mm[1], r = 0.5 * d;
-    const double base = m->nominal_top(cx, cy);
+    const double base = m->own_top(cx, cy);
     auto mat = make_material(f.region, recipe, cx - r - mp, cy - r - mp, cx + r + mp, cy + r + mp, mp);
     for (int j = 0; j < mat.ny; ++j)
       for (int i = 0; i < mat.nx; ++i) {
         const double x = mat.cx(i), y = mat.cy(j);
         if (std::hypot(x - cx, y - cy) > r) continue;
-        const double floor_z = m->nominal_top(x, y);
+        const double floor_z = m->own_top(x, y);
         if (std::isnan(floor_z)) continue;
         double top = base + h + std::tan(tilt) * ((x - cx) * std::cos(tilt_dir) + (y - cy) * std::sin(tilt_dir));
         if (rough > 0)
@@ -641,7 +641,7 @@ std::unique_ptr<CastingModel> build(const config::PartRecipe& recipe, std::uint6
         const Eigen::Vector2d p(mat.cx(i), mat.cy(j));
         const double along = (p - s).dot(u), across = (p - s).dot(n);
         if (along < 0 || along > L || std::abs(across) > 0.5 * t) continue;
-        const double floor_z = m->nominal_top(p.x(), p.y());
+        const double floor_z = m->own_top(p.x(), p.y());
         if (std::isnan(floor_z)) continue;
         const double top = floor_z + h + irr * wob(along / 40.0, 1.0);
         const auto k = mat.index(i, j);

@@ -82,6 +82,10 @@ class CastingModel {
 
   /// Golden body top at (x, y) from the primitives; NaN off the body.
   [[nodiscard]] double nominal_top(double x, double y) const;
+  /// This casting's own top: the nominal with its form deviation (NaN off the part). Flash and
+  /// risers are cast with the body and stand on it: on the nominal, a riser over a face the form
+  /// deviation lowers floated 0.5 mm above it, and a flat wheel cutting at the face took it all.
+  [[nodiscard]] double own_top(double x, double y) const { return nominal_top(x, y) + form_mm(x, y); }
   [[nodiscard]] double golden_sdf(const Vec3& p) const;
   /// This casting's smooth form deviation at (x, y): how far its body's top stands over the
   /// nominal's (0 for a golden casting).

@@ -179,6 +179,31 @@ TEST(SimGrind, ACutIntoTheCastingsOwnBodyIsMeasuredApartFromTheNominal) {
   EXPECT_EQ(high->deepest_body_cut.depth_mm, 0.0);
 }
 
+// A riser is cast with the body: it stands on the casting's own face, form deviation and all.
+// Where the form deviation lowers the face 0.2 mm or more under the riser, a wheel held at the
+// nominal face leaves a stub down to the own face (on the nominal, the riser floated over an air
+// gap and the wheel took all of it: the cut looked deeper than the wheel went).
+TEST(SimGrind, ARiserStandsOnTheCastingsOwnFace) {
+  auto recipe = sim_test::pump_body();
+  recipe.geometry.variation.form_deviation_mm = 0.5;
+  const auto& f = recipe.geometry.risers.at(0);
+  const double x = f.center_mm[0], y = f.center_mm[1];
+  std::optional<Casting> found;
+  for (std::uint64_t seed = 1; seed <= 60 && !found; ++seed) {
+    Casting c = Casting::make(recipe, seed);
+    if (c.form_deviation_mm(x, y) <= -0.2) found = c;
+  }
+  ASSERT_TRUE(found) << "no casting of 60 has its pad 0.2 mm under the nominal at the riser";
+  Casting& c = *found;
+  const double nominal = c.golden_top_z_mm(x, y);
+  ASSERT_GT(c.surface_z_mm(x, y), nominal + 2.0) << "the riser stands there";
+  auto res = grind(c, plunge(c, {x, y, nominal}), disc());
+  ASSERT_TRUE(res.ok()) << res.error().message;
+  EXPECT_NEAR(c.surface_z_mm(x, y), nominal, 0.02) << "the stub between the own face and the wheel is left";
+  EXPECT_GT(riser_volume(c), 0.0);
+  EXPECT_EQ(res->deepest_body_cut.depth_mm, 0.0);
+}
+
 // A disc's rim, tilted, dips 0.1 mm into the flat pad face under the riser at a point between
 // two of the 24 rim samples (the tool turned 7.5 deg about its axis): the sampled rim alone sags
 // 0.107 mm there and saw no gouge; the gouge depth must be the rim's.
