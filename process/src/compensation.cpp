@@ -102,11 +102,13 @@ class HeightColumns {
   HeightColumns(std::nullptr_t, double cell) : cell_(cell) {}
   void add(const Vec3& b) {
     const auto k = key(b.x(), b.y());
+    const auto z = static_cast<float>(b.z());
     const auto it = top_.find(k);
     if (it == top_.end()) {
-      top_.emplace(k, Top{static_cast<float>(b.z()), b});
-    } else if (b.z() > it->second.z) {
-      it->second = Top{static_cast<float>(b.z()), b};
+      top_.emplace(k, Top{z, z, b});
+    } else {
+      if (z > it->second.z) it->second.z = z, it->second.at = b;
+      it->second.bottom = std::min(it->second.bottom, z);
     }
   }
   /// Each column's highest point.
@@ -119,6 +121,14 @@ class HeightColumns {
     const auto it = top_.find(key(q.x(), q.y()));
     if (it == top_.end()) return std::nullopt;
     return static_cast<double>(it->second.z) - q.z();
+  }
+  /// How far the lowest surface the first scan saw in q's column stood above q: a surface at
+  /// q's height in the column (beside a fin, round a riser's foot) may be where the tool only
+  /// passed by (nullopt: the first scan saw nothing there).
+  [[nodiscard]] std::optional<double> below_all(const Vec3& q) const {
+    const auto it = top_.find(key(q.x(), q.y()));
+    if (it == top_.end()) return std::nullopt;
+    return static_cast<double>(it->second.bottom) - q.z();
   }
   [[nodiscard]] bool empty() const { return top_.empty(); }
   /// The highest point of q's column and its eight neighbours (nullopt: none seen there).
@@ -139,8 +149,9 @@ class HeightColumns {
     return (cx << 32) ^ (cy & 0xFFFFFFFF);
   }
   struct Top {
-    float z;
-    Vec3 at;
+    float z;       // the highest point's height
+    float bottom;  // the lowest point's
+    Vec3 at;       // the highest point
   };
   double cell_;
   std::unordered_map<std::int64_t, Top> top_;
@@ -154,12 +165,80 @@ constexpr std::size_t kMinWearMeasurements = 3;
 /// is left once the offset is fitted (measure_cut_offset()).
 constexpr double kSeparableShare = 0.3;
 
+/// The projector onto the directions of b-space a fit's solved span holds whole.
+Eigen::Matrix3d observed_part(const Eigen::Matrix3d& solved) {
+  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (solved + solved.transpose()));
+  for (int k = 0; k < 3; ++k)
+    if (eig.eigenvalues()(k) >= kObservedShare) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
+  return P;
+}
+
 struct Sample {
   double sd;
   Vec3 n;
-  double radial;     // share of n across the tool's axis
-  std::size_t tool;  // index into the recipe's tools
+  double radial;       // share of n across the tool's axis
+  std::size_t tool;    // index into the recipe's tools
+  std::size_t region;  // index into the verification's regions
 };
+
+/// A robust least-squares fit sd_i = a_i . x over samples (rows a_i from `row`): points off the
+/// fit by more than a shrinking gate are left out (material the tool did not reach, a
+/// neighbouring surface it passed by), the rest weighted by Huber's rule. Only the directions
+/// of x the samples fix with at least min_points' weight are solved for.
+struct RobustFit {
+  Eigen::VectorXd x;
+  Eigen::MatrixXd solved;  // projector onto the solved directions
+  Eigen::MatrixXd cov;     // of x
+  double sigma = 0.0;
+  std::size_t used = 0;
+  std::vector<std::size_t> tool_points;  // used points on a tool's radius (radial > 0.5), per tool
+};
+
+template <class Row>
+RobustFit robust_fit(const std::vector<Sample>& samples, const Row& row, int n, Eigen::VectorXd x0,
+                     const std::vector<double>& gates, std::size_t tools, std::size_t min_points) {
+  constexpr double kHuberMm = 0.05;
+  RobustFit f;
+  f.x = std::move(x0);
+  f.solved = Eigen::MatrixXd::Zero(n, n);
+  f.cov = Eigen::MatrixXd::Zero(n, n);
+  f.tool_points.assign(tools, 0);
+  for (const double gate : gates) {
+    Eigen::MatrixXd N = Eigen::MatrixXd::Zero(n, n);
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
+    double e2 = 0.0, wsum = 0.0;
+    f.used = 0;
+    std::fill(f.tool_points.begin(), f.tool_points.end(), 0);
+    for (const auto& s : samples) {
+      const Eigen::VectorXd a = row(s);
+      const double e = s.sd - a.dot(f.x);
+      if (std::abs(e) > gate) continue;
+      const double w = std::abs(e) <= kHuberMm ? 1.0 : kHuberMm / std::abs(e);
+      N.noalias() += w * a * a.transpose();
+      g += w * s.sd * a;
+      e2 += w * e * e;
+      wsum += w;
+      ++f.used;
+      if (s.radial > 0.5) ++f.tool_points[s.tool];
+    }
+    if (f.used < min_points) break;
+    f.sigma = std::sqrt(e2 / wsum);
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(N);
+    f.x.setZero();
+    f.solved.setZero();
+    f.cov.setZero();
+    for (int k = 0; k < n; ++k) {
+      const double lambda = eig.eigenvalues()(k);
+      if (!(lambda >= static_cast<double>(min_points))) continue;
+      const Eigen::VectorXd v = eig.eigenvectors().col(k);
+      f.x += (v.dot(g) / lambda) * v;
+      f.solved += v * v.transpose();
+      f.cov += (f.sigma * f.sigma / lambda) * v * v.transpose();
+    }
+  }
+  return f;
+}
 
 std::string fmt3(const Vec3& v, int precision) {
   char buf[96];
@@ -192,9 +271,10 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     const Eigen::Isometry3d T = r.T_base_region;
     for (const auto& p : r.roi_points_part) {
       const Vec3 q = T * p.cast<double>();
-      const auto removed = first_scan.removed_above(q);
+      const auto removed = first_scan.below_all(q);
       if (!removed || *removed < settings.removed_min_mm) continue;
       Sample s{};
+      s.region = static_cast<std::size_t>(&r - after.regions.data());
       if (!tools.nearest(q, s.sd, s.n, s.radial, s.tool) || std::abs(s.sd) > settings.band_mm) continue;
       samples.push_back(s);
     }
@@ -244,58 +324,20 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     if (column[s.tool] >= 0) a(column[s.tool]) = -s.radial;  // a smaller wheel cuts less far out
     return a;
   };
-  // Robust least squares sd_i = a_i . x: points off the fit by more than a shrinking gate are
-  // left out (material the tool did not reach, a neighbouring surface it passed by), the rest
-  // weighted by Huber's rule. Only the directions of x the samples fix with at least min_points'
-  // weight are solved for; an unknown counts as observed when it lies in their span (a ball's
-  // radius alone against a cut that looks up is not told apart from the offset's height).
-  Eigen::VectorXd x = Eigen::VectorXd::Zero(n);
-  Eigen::MatrixXd S = Eigen::MatrixXd::Zero(n, n);    // projector onto the solved directions
-  Eigen::MatrixXd cov = Eigen::MatrixXd::Zero(n, n);  // of x
-  double sigma = 0.0;
-  std::size_t used = 0;
-  std::vector<std::size_t> tool_points(recipe_tools.size(), 0);
-  constexpr double kHuberMm = 0.05;
-  for (const double gate : {settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15}) {
-    Eigen::MatrixXd N = Eigen::MatrixXd::Zero(n, n);
-    Eigen::VectorXd g = Eigen::VectorXd::Zero(n);
-    double e2 = 0.0, wsum = 0.0;
-    used = 0;
-    std::fill(tool_points.begin(), tool_points.end(), 0);
-    for (const auto& s : samples) {
-      const Eigen::VectorXd a = row(s);
-      const double e = s.sd - a.dot(x);
-      if (std::abs(e) > gate) continue;
-      const double w = std::abs(e) <= kHuberMm ? 1.0 : kHuberMm / std::abs(e);
-      N.noalias() += w * a * a.transpose();
-      g += w * s.sd * a;
-      e2 += w * e * e;
-      wsum += w;
-      ++used;
-      if (s.radial > 0.5) ++tool_points[s.tool];
-    }
-    if (used < settings.min_points) break;
-    sigma = std::sqrt(e2 / wsum);
-    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(N);
-    x.setZero();
-    S.setZero();
-    cov.setZero();
-    for (int k = 0; k < n; ++k) {
-      const double lambda = eig.eigenvalues()(k);
-      if (!(lambda >= static_cast<double>(settings.min_points))) continue;
-      const Eigen::VectorXd v = eig.eigenvectors().col(k);
-      x += (v.dot(g) / lambda) * v;
-      S += v * v.transpose();
-      cov += (sigma * sigma / lambda) * v * v.transpose();
-    }
-  }
+  // Robust least squares sd_i = a_i . x; an unknown counts as observed when it lies in the span
+  // the fit solved (a ball's radius alone against a cut that looks up is not told apart from
+  // the offset's height).
+  const RobustFit fit = robust_fit(samples, row, n, Eigen::VectorXd::Zero(n),
+                                   {settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15},
+                                   recipe_tools.size(), settings.min_points);
+  const Eigen::VectorXd& x = fit.x;
+  const Eigen::MatrixXd& S = fit.solved;
+  const Eigen::MatrixXd& cov = fit.cov;
+  const double sigma = fit.sigma;
+  const std::size_t used = fit.used;
+  const std::vector<std::size_t>& tool_points = fit.tool_points;
   // the offset's observed directions: those of b-space the solved span holds whole
-  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
-  {
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(S.topLeftCorner<3, 3>());
-    for (int k = 0; k < 3; ++k)
-      if (eig.eigenvalues()(k) >= kObservedShare) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
-  }
+  const Eigen::Matrix3d P = observed_part(S.topLeftCorner<3, 3>());
   if (used < settings.min_points || P.trace() < 0.5)
     return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(used) +
                                             " re-scanned points lie on the commanded tool surface (at least " +
@@ -311,6 +353,32 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
     const int c = column[t];
     if (c < 0 || S(c, c) < kObservedShare) continue;
     out.tools[recipe_tools[t].name] = ToolWearMeasured{x(c), std::sqrt(std::max(0.0, cov(c, c))), tool_points[t]};
+  }
+  // Each region's own offset: b alone on its samples, the wheels' radii as the whole fit has
+  // them, started from the whole cut's offset.
+  for (std::size_t r = 0; r < after.regions.size(); ++r) {
+    std::vector<Sample> own;
+    for (const auto& s : samples)
+      if (s.region == r) {
+        Sample o = s;
+        if (column[s.tool] >= 0) o.sd += s.radial * x(column[s.tool]);  // as if the wheel were as commanded
+        own.push_back(o);
+      }
+    if (own.size() < settings.min_points) continue;
+    const RobustFit rf = robust_fit(
+        own, [](const Sample& s) { return Eigen::VectorXd(s.n); }, 3, Eigen::VectorXd(x.head<3>()),
+        {0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15}, recipe_tools.size(), settings.min_points);
+    if (rf.used < settings.min_points) continue;
+    const Eigen::Matrix3d Pr = observed_part(rf.solved);
+    if (Pr.trace() < 0.5) continue;
+    RegionCutOffset ro;
+    if (const auto* region = loaded.region(after.regions[r].name); region != nullptr) ro.tool = region->tool;
+    ro.offset_mm = Pr * Vec3(rf.x);
+    ro.observed = Pr;
+    ro.std_mm = (Pr * Eigen::Matrix3d(rf.cov) * Pr).diagonal().cwiseMax(0.0).cwiseSqrt();
+    ro.points = rf.used;
+    ro.rms_mm = rf.sigma;
+    out.regions[after.regions[r].name] = ro;
   }
   return out;
 }
@@ -348,6 +416,8 @@ Eigen::Matrix3d matrix_from_json(const nlohmann::json& j, const char* key) {
 
 Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSection& settings) {
   const Vec3 before = bias_mm;
+  std::map<std::string, Vec3> region_before;  // each measured region's, as it was commanded
+  for (const auto& [name, m] : measured.regions) region_before[name] = region_bias_mm(name);
   // the measurement is the cell's whole offset (the re-scan against the commanded path, which
   // already had the estimate taken off): the estimate moves towards it along what it observed
   const Vec3 innovation = measured.observed * (measured.offset_mm - bias_mm);
@@ -356,7 +426,29 @@ Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSecti
   learned = projector_onto(learned + measured.observed);
   if (const double n = bias_mm.norm(); n > settings.max_offset_mm && n > 0.0) bias_mm *= settings.max_offset_mm / n;
   ++updates;
+  for (const auto& [name, m] : measured.regions) {
+    const Vec3 from = region_before.at(name);
+    auto& r = regions[name];
+    Vec3 own = from + settings.gain * (m.observed * (m.offset_mm - from));
+    if (const double n = own.norm(); n > settings.max_offset_mm && n > 0.0) own *= settings.max_offset_mm / n;
+    r.learned = projector_onto(r.learned + m.observed);
+    r.bias_mm = r.learned * own;
+    r.tool = m.tool;
+    ++r.updates;
+  }
   return bias_mm - before;
+}
+
+Vec3 CellBias::region_bias_mm(const std::string& region) const {
+  const auto it = regions.find(region);
+  if (it == regions.end()) return bias_mm;
+  return it->second.learned * it->second.bias_mm + (Eigen::Matrix3d::Identity() - it->second.learned) * bias_mm;
+}
+
+std::map<std::string, RegionPlacement> CellBias::region_placement(const Eigen::Matrix3d& bound_mm2) const {
+  std::map<std::string, RegionPlacement> out;
+  for (const auto& [name, r] : regions) out[name] = RegionPlacement{region_bias_mm(name), bound_mm2};
+  return out;
 }
 
 std::map<std::string, double> removed_cm3(const LoadedRecipe& loaded, const ProcessOutput& processed) {
@@ -486,6 +578,7 @@ void CellBias::change_tool(const std::string& name) {
   auto& tw = tools[name];
   tw.removed_cm3 = 0.0;
   ++tw.changes;
+  std::erase_if(regions, [&](const auto& r) { return r.second.tool == name; });
 }
 
 double PlacementUncertainty::along_mm(const Vec3& n) const { return std::sqrt(std::max(0.0, n.dot(bound_mm2 * n))); }
@@ -518,13 +611,29 @@ PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, 
 RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
                                          const CutOffset& measured, const config::CompensationSection& settings) {
   RegrindCompensation out;
-  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity(), P = measured.observed, Q = I - P;
-  out.bias_mm = P * measured.offset_mm + Q * cell.bias_mm;
-  const auto usual = placement_uncertainty(safety, cell, settings);
-  if (usual.bound_mm2.isZero()) return out;  // nothing stated: the regions' allowances alone
-  const Eigen::Matrix3d scatter = measured.std_mm.cwiseAbs2().asDiagonal();
-  const double repeatability2 = safety.robot_repeatability_mm * safety.robot_repeatability_mm;
-  out.placement.bound_mm2 = Q * usual.bound_mm2 * Q + P * (repeatability2 * I + scatter) * P;
+  const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
+  // along what `offset` observed: it, bounded by the repeatability and its own scatter; along
+  // the rest as `bias` and `bound` have it
+  const auto take = [&](const Vec3& bias, const Eigen::Matrix3d& bound, const Eigen::Matrix3d& P, const Vec3& offset,
+                        const Vec3& std_mm) {
+    const Eigen::Matrix3d Q = I - P;
+    RegionPlacement p;
+    p.bias_mm = P * offset + Q * bias;
+    if (bound.isZero()) return p;  // nothing stated: the regions' allowances alone
+    const Eigen::Matrix3d scatter = std_mm.cwiseAbs2().asDiagonal();
+    const double repeatability2 = safety.robot_repeatability_mm * safety.robot_repeatability_mm;
+    p.bound_mm2 = Q * bound * Q + P * (repeatability2 * I + scatter) * P;
+    return p;
+  };
+  const auto whole = take(cell.bias_mm, placement_uncertainty(safety, cell, settings).bound_mm2, measured.observed,
+                          measured.offset_mm, measured.std_mm);
+  out.bias_mm = whole.bias_mm;
+  out.placement.bound_mm2 = whole.bound_mm2;
+  for (const auto& [name, r] : measured.regions)
+    out.regions[name] = take(whole.bias_mm, whole.bound_mm2, r.observed, r.offset_mm, r.std_mm);
+  // a region not measured this time keeps what the cell learned of it
+  for (const auto& [name, p] : cell.region_placement(placement_uncertainty(safety, cell, settings).bound_mm2))
+    out.regions.emplace(name, p);
   return out;
 }
 
@@ -562,6 +671,17 @@ Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
           throw std::invalid_argument("tools." + name + " is not finite");
         b.tools[name] = w;
       }
+    if (j.contains("regions"))
+      for (const auto& [name, r] : j.at("regions").items()) {
+        RegionBias rb;
+        const auto& rv = r.at("bias_mm");
+        rb.bias_mm = Vec3(rv.at(0).get<double>(), rv.at(1).get<double>(), rv.at(2).get<double>());
+        if (!rb.bias_mm.allFinite()) throw std::invalid_argument("regions." + name + ".bias_mm is not finite");
+        rb.learned = matrix_from_json(r, "learned");
+        rb.tool = r.value("tool", std::string{});
+        rb.updates = r.value("updates", std::size_t{0});
+        b.regions[name] = rb;
+      }
     return b;
   } catch (const std::exception& e) {
     return Error{"compensation.state", file.string() + ": not a compensation state file (" + e.what() + ")"};
@@ -577,6 +697,12 @@ Status save_cell_bias(const std::filesystem::path& file, const CellBias& bias) {
                    {"sum_wear_squared", w.sum_ww},
                    {"measurements", w.measurements},
                    {"changes", w.changes}};
+  nlohmann::ordered_json regions = nlohmann::ordered_json::object();
+  for (const auto& [name, r] : bias.regions)
+    regions[name] = {{"bias_mm", {r.bias_mm.x(), r.bias_mm.y(), r.bias_mm.z()}},
+                     {"learned", matrix_to_json(r.learned)},
+                     {"tool", r.tool},
+                     {"updates", r.updates}};
   const nlohmann::ordered_json j = {{"bias_mm", {bias.bias_mm.x(), bias.bias_mm.y(), bias.bias_mm.z()}},
                                     {"updates", bias.updates},
                                     {"calibration_id", bias.calibration_id},
@@ -584,6 +710,7 @@ Status save_cell_bias(const std::filesystem::path& file, const CellBias& bias) {
                                     {"learned", matrix_to_json(bias.learned)},
                                     {"scatter_mm2", matrix_to_json(bias.scatter_mm2)},
                                     {"tools", tools},
+                                    {"regions", regions},
                                     {"frame", "base: where the tool cuts minus where it is told to, mm"}};
   return write_file_atomic(file, j.dump(2) + "\n");
 }

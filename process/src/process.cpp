@@ -182,13 +182,16 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     const Transform T_base_located = orthonormalized(weak ? out.T_base_part : rr.registration.T_scene_template);
     const Transform T_part_region = T_base_located.inverse() * rr.registration.T_scene_template;
     // commanded where the cell's tool, with its learned bias, cuts where the plan says
+    const auto own = options.region_placement.find(region.name);
+    const bool placed = own != options.region_placement.end();
     in.T_base_part = T_base_located;
-    in.T_base_part.translation() -= options.cell_bias_mm;
+    in.T_base_part.translation() -= placed ? own->second.bias_mm : options.cell_bias_mm;
     in.excess_points_part.reserve(rr.excess.points.size());
     for (const auto& p : rr.excess.points) in.excess_points_part.push_back(T_part_region * p.cast<double>());
     in.template_sdf = loaded.template_sdf;
     const Eigen::Matrix3d R_base_part = T_base_located.linear();
-    in.placement_bound_mm2 = R_base_part.transpose() * options.placement_bound_mm2 * R_base_part;
+    in.placement_bound_mm2 =
+        R_base_part.transpose() * (placed ? own->second.bound_mm2 : options.placement_bound_mm2) * R_base_part;
     in.form_deviation_mm = recipe.vision.form_deviation_mm;
     if (rr.excess.form.fitted) {
       const auto form = rr.excess.form;  // region template frame ~ part frame (within the region's fit)

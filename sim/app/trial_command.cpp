@@ -458,6 +458,7 @@ int trial(const Args& a) {
     const auto placement = fettle::process::placement_uncertainty(
         cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation);
     popt.placement_bound_mm2 = placement.bound_mm2;
+    if (learning) popt.region_placement = cell_bias.region_placement(placement.bound_mm2);
     if (!placement.bound_mm2.isZero()) {
       std::fprintf(stderr, " (keeping %s)", placement.describe().c_str());
       sj["placement_bound_mm"] = {placement.along_mm(fettle::Vec3::UnitX()), placement.along_mm(fettle::Vec3::UnitY()),
@@ -579,6 +580,13 @@ int trial(const Args& a) {
         cj["measured_std_mm"] = {measured->std_mm.x(), measured->std_mm.y(), measured->std_mm.z()};
         cj["points"] = measured->points;
         cj["directions_observed"] = measured->observed_directions();
+        json mr = json::object();
+        for (const auto& [name, r] : measured->regions)
+          mr[name] = {{"offset_mm", {r.offset_mm.x(), r.offset_mm.y(), r.offset_mm.z()}},
+                      {"std_mm", {r.std_mm.x(), r.std_mm.y(), r.std_mm.z()}},
+                      {"points", r.points},
+                      {"directions_observed", static_cast<int>(std::lround(r.observed.trace()))}};
+        cj["measured_regions"] = mr;
       } else {
         cj["not_measured"] = measured.error().message;
       }
@@ -610,6 +618,7 @@ int trial(const Args& a) {
         const auto rc = fettle::process::regrind_compensation(cell.safety, cell_bias, *cut_offset, cell.compensation);
         ro.cell_bias_mm = rc.bias_mm;
         ro.placement_bound_mm2 = rc.placement.bound_mm2;
+        ro.region_placement = rc.regions;
       }
       ro.before = &out->inspection;
       ro.before_plans = &out->plans;

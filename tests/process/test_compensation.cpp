@@ -120,6 +120,40 @@ TEST(Compensation, ADirectionNoCutSurfaceFixesIsReportedUnobservedNotGuessed) {
   EXPECT_NEAR(m->offset_mm.z(), -0.1, 0.02) << m->describe();
 }
 
+TEST(Compensation, TheSurfaceBesideAFinIsNotACut) {
+  // A fin 1.5 mm thick and 2 mm high along x on flat ground at z = 0, ground by the ball with
+  // its tip 0.2 mm above the ground (its clearance). The re-scan shows the fin's stub where the
+  // tool really was and the ground beside it where it always was: within 1 mm of the ball's
+  // surface, in base-frame columns whose first-scan top was the fin. Read as cuts, those would
+  // say the tool cut the clearance lower than told, the next plan would keep that much more.
+  const auto recipe = ball_recipe();
+  const Vec3 offset(0.0, 0.05, -0.06);
+  constexpr double kClearance = 0.2, kHalfThickness = 0.75, kHeight = 2.0;
+  CutStart s("groove", 0.02, 4);
+  for (int i = 0; i <= 60; ++i) {
+    fettle::TrajectoryPoint p;
+    p.T_base_tool.position_mm = Vec3(-30.0 + i, 0.0, kClearance);
+    p.kind = fettle::MoveKind::grind;
+    s.c.commanded.points.push_back(p);
+  }
+  for (double x = -25; x <= 25; x += 0.2)
+    for (double y = -5; y <= 5; y += 0.1) {
+      const bool fin = std::abs(y) < kHalfThickness;
+      s.c.before.scene_part.points.emplace_back(static_cast<float>(x), static_cast<float>(y),
+                                                static_cast<float>(fin ? kHeight : 0.0));
+      // the stub's top lies on the ball as it really was (commanded + offset); the ground as it was
+      const double ball_y = y - offset.y();
+      const double stub = kClearance + offset.z() + kRadius - std::sqrt(kRadius * kRadius - ball_y * ball_y);
+      s.rv.roi_points_part.emplace_back(static_cast<float>(x), static_cast<float>(y),
+                                        static_cast<float>((fin ? stub : 0.0) + s.n(s.rng)));
+    }
+  s.c.after.regions.push_back(s.rv);
+  const auto m = fp::measure_cut_offset(recipe, s.c.before, {s.c.commanded}, s.c.after);
+  ASSERT_TRUE(m) << m.error().message;
+  EXPECT_NEAR(m->offset_mm.z(), offset.z(), 0.03) << m->describe();
+  EXPECT_LT(m->rms_mm, 0.05) << m->describe();
+}
+
 TEST(Compensation, NoCutIsAnErrorThatSaysSo) {
   const auto recipe = ball_recipe();
   auto cut = grooves(Vec3::Zero(), true, 0.0, 3);
@@ -153,6 +187,46 @@ TEST(Compensation, TheEstimateConvergesOnTheCellsOffsetAndStaysWithinItsBound) {
   huge.observed = Eigen::Matrix3d::Identity();
   for (int i = 0; i < 20; ++i) bias.update(huge, settings);
   EXPECT_NEAR(bias.bias_mm.norm(), settings.max_offset_mm, 1e-9) << bias.describe();
+}
+
+// A region whose cut lies 0.12 mm off the cell's along z (its place's share of a hand-eye
+// rotation, its wheel's wear) learns that as its own: commanded from it, bounded like the
+// cell's, kept while the cell's is updated by the other regions, and forgotten when its wheel
+// is changed (the new wheel is larger by the wear it held).
+TEST(Compensation, EachRegionLearnsItsOwnOffsetAndForgetsItWithItsWheel) {
+  fettle::config::CompensationSection settings;  // gain 0.5, max 0.5 mm
+  fp::CellBias bias;
+  const Vec3 cell(0.05, 0.0, -0.30), fin(0.05, 0.0, -0.18);
+  fp::CutOffset m;
+  m.offset_mm = cell;
+  m.observed = Eigen::Matrix3d::Identity();
+  fp::RegionCutOffset own;
+  own.tool = "ball-12";
+  own.observed = Vec3(0.0, 0.0, 1.0).asDiagonal();  // the fin's stub looks up: z only
+  own.offset_mm = own.observed * fin;
+  m.regions["side-fin"] = own;
+  for (int cycle = 0; cycle < 6; ++cycle) bias.update(m, settings);
+  EXPECT_LT((bias.bias_mm - cell).norm(), 0.01) << bias.describe();
+  const Vec3 r = bias.region_bias_mm("side-fin");
+  EXPECT_NEAR(r.z(), fin.z(), 0.01);
+  EXPECT_NEAR(r.x(), bias.bias_mm.x(), 1e-12);  // sideways: the cell's
+  EXPECT_LT((bias.region_bias_mm("riser") - bias.bias_mm).norm(), 1e-12);  // a region it never measured
+  const Eigen::Matrix3d bound = 0.04 * Eigen::Matrix3d::Identity();
+  const auto placed = bias.region_placement(bound);
+  ASSERT_EQ(placed.size(), 1u);
+  EXPECT_LT((placed.at("side-fin").bias_mm - r).norm(), 1e-12);
+  EXPECT_LT((placed.at("side-fin").bound_mm2 - bound).norm(), 1e-12);
+  // a cycle that measures the cell but not the fin leaves the fin's own where it was
+  fp::CutOffset cell_only = m;
+  cell_only.regions.clear();
+  cell_only.offset_mm = cell + Vec3(0.0, 0.0, 0.04);
+  bias.update(cell_only, settings);
+  EXPECT_NEAR(bias.region_bias_mm("side-fin").z(), r.z(), 1e-12);
+  bias.change_tool("flat-16");
+  EXPECT_EQ(bias.regions.count("side-fin"), 1u);
+  bias.change_tool("ball-12");
+  EXPECT_EQ(bias.regions.count("side-fin"), 0u);
+  EXPECT_LT((bias.region_bias_mm("side-fin") - bias.bias_mm).norm(), 1e-12);
 }
 
 // The stated accuracies (calibration 0.20, robot 0.15, repeatability 0.15 mm) bound the cut at
@@ -217,6 +291,59 @@ TEST(Compensation, AReGrindIsBoundedByWhatItsCycleMeasured) {
   EXPECT_TRUE(fp::regrind_compensation(fettle::config::SafetySection{}, cell, measured, settings).placement.bound_mm2.isZero());
 }
 
+// Two regions ground by the same ball 150 mm apart, cut 0.12 mm apart in height (a hand-eye
+// rotation's lever, a wheel's wear): the whole cut's offset lies between them, each region's
+// own is its own, and a re-grind commands each region with its own along what its cut observed.
+TEST(Compensation, AReGrindTakesEachRegionsOwnOffset) {
+  auto recipe = ball_recipe();
+  recipe.recipe.regions.push_back(recipe.recipe.regions.front());
+  recipe.recipe.regions.back().name = "far";
+  const Vec3 near_offset(0.05, -0.04, -0.25), far_offset(0.05, -0.04, -0.13);
+  auto cut = grooves(near_offset, true, 0.03, 7);
+  const auto far = grooves(far_offset, false, 0.03, 8);  // one groove along x: x is not observed there
+  const Vec3 shift(0.0, 150.0, 0.0);
+  for (auto p : far.commanded.points) {
+    p.T_base_tool.position_mm += shift;
+    cut.commanded.points.push_back(p);
+  }
+  cut.commanded.segment_regions.push_back("far");
+  for (auto& p : cut.commanded.points)
+    if (p.T_base_tool.position_mm.y() > 100.0) p.segment = 1;
+  for (const auto& p : far.before.scene_part.points) cut.before.scene_part.points.push_back(p + shift.cast<float>());
+  auto rv = far.after.regions.front();
+  rv.name = "far";
+  for (auto& p : rv.roi_points_part) p += shift.cast<float>();
+  cut.after.regions.push_back(rv);
+
+  const auto m = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after);
+  ASSERT_TRUE(m) << m.error().message;
+  ASSERT_EQ(m->regions.count("groove"), 1u);
+  ASSERT_EQ(m->regions.count("far"), 1u);
+  const auto& g = m->regions.at("groove");
+  const auto& f = m->regions.at("far");
+  EXPECT_LT((g.offset_mm - near_offset).norm(), 0.02);
+  EXPECT_NEAR(f.offset_mm.z(), far_offset.z(), 0.02);
+  EXPECT_NEAR(f.offset_mm.y(), far_offset.y(), 0.02);
+  EXPECT_LT((f.observed * Vec3::UnitX()).norm(), 0.1);  // the far groove runs along x
+  // the whole cut's height is neither region's
+  EXPECT_GT(std::abs(m->offset_mm.z() - far_offset.z()), 0.04) << m->describe();
+
+  fettle::config::SafetySection safety;
+  safety.calibration_accuracy_mm = 0.20;
+  safety.robot_accuracy_mm = 0.15;
+  safety.robot_repeatability_mm = 0.15;
+  fp::CellBias cell;
+  cell.bias_mm = Vec3(0.02, 0.0, -0.1);
+  const auto rc = fp::regrind_compensation(safety, cell, *m, fettle::config::CompensationSection{});
+  ASSERT_EQ(rc.regions.count("far"), 1u);
+  const auto& rf = rc.regions.at("far");
+  EXPECT_NEAR(rf.bias_mm.z(), far_offset.z(), 0.02);
+  // along x, which the far groove did not observe, the whole cut's (observed by the near cross)
+  EXPECT_NEAR(rf.bias_mm.x(), rc.bias_mm.x(), 0.005);
+  EXPECT_NEAR(std::sqrt(Vec3::UnitZ().dot(rf.bound_mm2 * Vec3::UnitZ())), 0.15, 0.01);
+  EXPECT_NEAR(rc.regions.at("groove").bias_mm.z(), near_offset.z(), 0.02);
+}
+
 TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   const auto dir = std::filesystem::temp_directory_path() / ("fettle-comp-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
@@ -231,6 +358,7 @@ TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   b.tools["chamfer-disc"].sum_wv = 0.3;
   b.tools["chamfer-disc"].sum_vv = 4.0;
   b.tools["chamfer-disc"].measurements = 3;
+  b.regions["side-fin"] = fp::RegionBias{Vec3(0.0, 0.0, -0.12), Vec3(0.0, 0.0, 1.0).asDiagonal(), "ball-12", 4};
   ASSERT_TRUE(fp::save_cell_bias(dir / "compensation.json", b));
   const auto r = fp::load_cell_bias(dir / "compensation.json");
   ASSERT_TRUE(r) << r.error().message;
@@ -246,6 +374,10 @@ TEST(Compensation, TheStateFileKeepsTheEstimateAndABadOneIsNamed) {
   disc.wear_mm_per_cm3 = 0.05;
   EXPECT_DOUBLE_EQ(r->tools.at("chamfer-disc").rate_mm_per_cm3(disc), 0.075);
   EXPECT_EQ(r->tools.at("chamfer-disc").measurements, 3u);
+  ASSERT_EQ(r->regions.count("side-fin"), 1u);
+  EXPECT_EQ(r->regions.at("side-fin").tool, "ball-12");
+  EXPECT_EQ(r->regions.at("side-fin").updates, 4u);
+  EXPECT_LT((r->region_bias_mm("side-fin") - Vec3(0.1, -0.2, -0.12)).norm(), 1e-12);
   const auto none = fp::load_cell_bias(dir / "missing.json");
   ASSERT_TRUE(none);
   EXPECT_EQ(none->updates, 0u);

@@ -224,6 +224,12 @@ void Runtime::Impl::record_cycle(Cycle& c) {
     const auto v3 = [](const Vec3& v) { return json::array({v.x(), v.y(), v.z()}); };
     json comp{{"frame", "base"}, {"bias_commanded_mm", v3(c.cell_bias_mm)}, {"bias_now_mm", v3(cell_bias.bias_mm)},
               {"updates", cell_bias.updates}};
+    // the regions commanded with an offset of their own, and each one's now
+    json own = json::object(), own_now = json::object();
+    for (const auto& [name, r] : c.region_placement) own[name] = v3(r.bias_mm);
+    for (const auto& [name, r] : cell_bias.regions) own_now[name] = v3(cell_bias.region_bias_mm(name));
+    comp["region_bias_commanded_mm"] = own;
+    comp["region_bias_now_mm"] = own_now;
     // each wheel's radius lost to wear: as the paths were planned, and as predicted now
     comp["tool_wear_planned_mm"] = c.tool_wear_mm;
     if (c.recipe) {

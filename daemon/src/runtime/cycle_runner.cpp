@@ -427,6 +427,8 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
   all_regions.tool_wear_mm = c.tool_wear_mm;
   all_regions.tool_wear_most_mm = c.tool_wear_most_mm;
   all_regions.placement_bound_mm2 = c.placement.bound_mm2;
+  if (cell.compensation.enabled) c.region_placement = cell_bias.region_placement(c.placement.bound_mm2);
+  all_regions.region_placement = c.region_placement;
   if (!c.placement.bound_mm2.isZero())
     log->info("cycle {}: every path keeps {} from the template (the stated accuracies less what the cell has learned)",
               c.summary.id, c.placement.describe());
@@ -456,6 +458,7 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     po.regions = v->regrind_regions();
     po.cell_bias_mm = c.cell_bias_mm;
     po.placement_bound_mm2 = c.placement.bound_mm2;
+    po.region_placement = c.region_placement;
     // the wheels as worn after this cycle's grind (learn_bias counted it)
     if (cell.compensation.enabled) {
       po.tool_wear_mm = cell_bias.tool_wear_mm(c.recipe->recipe);
@@ -466,6 +469,10 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
       const auto rc = process::regrind_compensation(cell.safety, cell_bias, c.cut_offset->value(), cell.compensation);
       po.cell_bias_mm = rc.bias_mm;
       po.placement_bound_mm2 = rc.placement.bound_mm2;
+      po.region_placement = rc.regions;
+      for (const auto& [name, r] : rc.regions)
+        log->info("cycle {}: region '{}' is re-ground with its own offset ({:.3f}, {:.3f}, {:.3f}) mm", c.summary.id, name,
+                  r.bias_mm.x(), r.bias_mm.y(), r.bias_mm.z());
       log->info("cycle {}: the re-grind keeps {} from the template (what this cycle's grind measured)", c.summary.id,
                 rc.placement.describe());
     }

@@ -105,6 +105,8 @@ struct Cycle {
   /// [compensation]: the bias this cycle's paths were commanded with, and what its first
   /// verification measured of where the tool cut (report.json "compensation").
   Vec3 cell_bias_mm = Vec3::Zero();
+  /// The regions commanded with an offset of their own (process::CellBias::region_placement).
+  std::map<std::string, process::RegionPlacement> region_placement;
   /// What every path of the cycle keeps from the template: the cell's stated accuracies less
   /// what it has learned (process::placement_uncertainty; report.json "placement_bound_mm").
   process::PlacementUncertainty placement;

@@ -36,6 +36,19 @@ struct ToolWearMeasured {
   std::size_t points = 0;  ///< re-scan points on the surface its radius cut
 };
 
+/// Where one region's tool cut against where it was told to, on that region's cut surfaces
+/// alone (base frame). It differs from the whole cut's offset by what is the region's own: a
+/// hand-eye rotation moves a cut by its lever (0.05 deg: 0.1 mm between the riser and the side
+/// fin 120 mm away), a wheel's wear and its TCP move only its own regions.
+struct RegionCutOffset {
+  std::string tool;               ///< the region's wheel
+  Vec3 offset_mm = Vec3::Zero();  ///< along the observed directions; 0 along the others
+  Eigen::Matrix3d observed = Eigen::Matrix3d::Zero();  ///< as CutOffset::observed, for these points
+  Vec3 std_mm = Vec3::Zero();
+  std::size_t points = 0;
+  double rms_mm = 0.0;
+};
+
 /// Where the tool cut against where it was told to cut, from one cycle's re-scan (base frame).
 struct CutOffset {
   Vec3 offset_mm = Vec3::Zero();  ///< along the observed directions; 0 along the others
@@ -49,6 +62,8 @@ struct CutOffset {
   /// sd_i = n_i . b - c_i w_tool, c_i the share of the surface's normal across the tool's axis
   /// (1 on a ball and a cylinder's side, 0 on its flat end).
   std::map<std::string, ToolWearMeasured> tools;
+  /// Each region whose own cut surfaces fix a direction (min_points' weight), by region name.
+  std::map<std::string, RegionCutOffset> regions;
   [[nodiscard]] int observed_directions() const;
   /// "(x, y, z) mm +- (sx, sy, sz) from N cut-surface points, k of 3 directions observed"
   [[nodiscard]] std::string describe() const;
@@ -58,10 +73,14 @@ struct CutOffsetSettings {
   /// Re-scan points farther than this from the commanded tool surface are not on a cut (must
   /// exceed the largest offset to be measured).
   double band_mm = 1.0;
-  /// Only re-scan points at least this far below the first scan's surface (highest point of
-  /// the same base-frame x-y cell of column_mm): material was removed there, the tool cut it.
-  /// A surface the tool passed by at its allowance is left out: it lies where it was, not on
-  /// the tool. Above the scanner's depth noise.
+  /// Only re-scan points at least this far below every surface the first scan saw in the same
+  /// base-frame x-y cell of column_mm: material was removed there, the tool cut it. A surface
+  /// the tool passed by at its allowance is left out: it lies where it was, not on the tool.
+  /// Beside a thin fin or round a riser's foot the column holds both the material and the
+  /// surface under it; measured against the column's highest point the untouched surface reads
+  /// as a cut standing the allowance off the tool, the offset learns that as a bias, the next
+  /// plan keeps that much more and the stub grows cycle by cycle (test
+  /// Compensation.TheSurfaceBesideAFinIsNotACut). Above the scanner's depth noise.
   double removed_min_mm = 0.15;
   double column_mm = 0.6;
   std::size_t min_points = 50;  ///< a direction needs this many points' weight to be observed
@@ -123,6 +142,15 @@ struct ToolWear {
   [[nodiscard]] WearRange wear(const config::Tool& tool, double more_cm3 = 0.0) const;
 };
 
+/// A region's own learned offset (base frame): its place's share of a hand-eye rotation, its
+/// wheel's wear and TCP, which the cell's one offset cannot hold for every region at once.
+struct RegionBias {
+  Vec3 bias_mm = Vec3::Zero();  ///< along `learned`; the cell's bias along the rest
+  Eigen::Matrix3d learned = Eigen::Matrix3d::Zero();
+  std::string tool;             ///< the wheel it was learned with: forgotten when that one is changed
+  std::size_t updates = 0;
+};
+
 /// The cell's learned bias: where its tool cuts minus where it is told to (base frame).
 struct CellBias {
   Vec3 bias_mm = Vec3::Zero();
@@ -136,10 +164,18 @@ struct CellBias {
   std::string calibration_id;     ///< the calibration it was learned under (reset when it changes)
   std::string tools_id;           ///< the tools it was learned with (reset when they change)
   std::map<std::string, ToolWear> tools;  ///< each wheel's wear, by tool name
+  std::map<std::string, RegionBias> regions;  ///< each region's own, by region name
 
   /// Moves the estimate by gain x (measured - estimate) along the measurement's observed
-  /// directions, bounded to max_offset_mm; returns the step taken.
+  /// directions, bounded to max_offset_mm, and each measured region's own the same way from
+  /// where it stood (region_bias_mm()); returns the cell's step.
   Vec3 update(const CutOffset& measured, const config::CompensationSection& settings);
+  /// Where a region is commanded from: its own learned offset along what it learned, the cell's
+  /// along the rest.
+  [[nodiscard]] Vec3 region_bias_mm(const std::string& region) const;
+  /// Every region with an offset of its own, placed by it within `bound_mm2` (the cycle's
+  /// placement_uncertainty()): ProcessOptions::region_placement.
+  [[nodiscard]] std::map<std::string, RegionPlacement> region_placement(const Eigen::Matrix3d& bound_mm2) const;
   /// Each recipe tool's predicted wear.
   [[nodiscard]] std::map<std::string, WearRange> tool_wear(const config::PartRecipe& recipe) const;
   /// The least of it (ProcessOptions::tool_wear_mm) and the most (ProcessOptions::tool_wear_most_mm).
@@ -155,7 +191,9 @@ struct CellBias {
   /// passes their max_wear_mm: "change the wheel" before the next cycle. Empty: none.
   [[nodiscard]] std::vector<std::string> worn_out(const config::PartRecipe& recipe,
                                                   const std::map<std::string, double>& next_cm3) const;
-  /// A new wheel of the tool's kind is fitted: its removal starts at 0, the rate is kept.
+  /// A new wheel of the tool's kind is fitted: its removal starts at 0, the rate is kept, and
+  /// the regions it grinds forget their own offsets (which hold the old wheel's wear: kept, the
+  /// new, larger wheel would cut that much deeper).
   void change_tool(const std::string& name);
   void reset() { *this = CellBias{}; }
   [[nodiscard]] std::string describe() const;  ///< "(x, y, z) mm after N cycles"
@@ -187,9 +225,14 @@ PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, 
 /// The cell's smoothed estimate still holds part of the stated systematic error after a few
 /// cycles, and a re-grind bounded by it keeps the stub the first grind left (0.3-0.5 mm on a
 /// riser under the realistic error budget). Test Compensation.AReGrindIsBoundedByWhatItsCycleMeasured.
+/// A region whose own cut surfaces fixed a direction is commanded along it with its own offset
+/// (CutOffset::regions): the whole cut's offset is the riser's where its face holds most of the
+/// points, and a fin 120 mm away was cut 0.1-0.15 mm higher than that (test
+/// Compensation.AReGrindTakesEachRegionsOwnOffset).
 struct RegrindCompensation {
   Vec3 bias_mm = Vec3::Zero();
   PlacementUncertainty placement;
+  std::map<std::string, RegionPlacement> regions;  ///< ProcessOptions::region_placement
 };
 RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
                                          const CutOffset& measured, const config::CompensationSection& settings);

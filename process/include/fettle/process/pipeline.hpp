@@ -145,6 +145,13 @@ using ToolWearMm = std::map<std::string, double>;
 /// The recipe's tool as worn by `wear`: its diameter less twice its wear (at least 0.1 mm).
 config::Tool worn_tool(const config::Tool& tool, const ToolWearMm& wear);
 
+/// One region's own placement, in place of the cycle's (ProcessOptions::cell_bias_mm and
+/// placement_bound_mm2 for it): what a re-grind measured on that region's cut.
+struct RegionPlacement {
+  Vec3 bias_mm = Vec3::Zero();
+  Eigen::Matrix3d bound_mm2 = Eigen::Matrix3d::Zero();
+};
+
 struct ProcessOptions {
   /// Regions to plan (names); empty = all. A re-grind plans only what verify() flagged.
   std::vector<std::string> regions;
@@ -156,6 +163,8 @@ struct ProcessOptions {
   /// unit n is sqrt(n^T M n)): every region keeps at least this from the template along the
   /// surface's normal where it exceeds the region's allowance (process::placement_uncertainty).
   Eigen::Matrix3d placement_bound_mm2 = Eigen::Matrix3d::Zero();
+  /// Regions (by name) placed by their own bias and bound instead (process::RegrindCompensation).
+  std::map<std::string, RegionPlacement> region_placement;
   /// A re-grind: the cycle's first inspection. Each region's material is measured from the
   /// casting's face as that scan saw it: on the ground casting, a stub the passes left within
   /// the form deviation fits as the face, and the re-grind would find nothing to grind.
