@@ -15,7 +15,7 @@ ASAN_CTEST_ARGS ?=
 # Targets test-asan builds; empty: every target, so every test runs.
 ASAN_TARGETS ?=
 
-.PHONY: all deps configure build test test-unit test-asan test-asan-ci test-tsan fuzz soak demo bench accuracy accuracy-bias accuracy-vision robustness clean
+.PHONY: all deps configure build test test-unit test-asan test-asan-ci test-tsan fuzz soak demo bench accuracy accuracy-scan accuracy-bias accuracy-vision robustness clean
 
 all: build
 
@@ -131,6 +131,12 @@ accuracy: build
 	  --seeds $(ACCURACY_SEEDS) $(if $(ERRORS),--errors $(ERRORS)) $(if $(CELL_SEED),--cell-seed $(CELL_SEED)) \
 	  --out $(BUILD_DIR)/accuracy; status=$$?; \
 	  scripts/update-results $(if $(ERRORS),accuracy-errors,accuracy) $(BUILD_DIR)/accuracy/summary.md && exit $$status
+
+# The same closed loop with a template built from a golden casting's scan ([template] source =
+# "scan", `fettle template build`) instead of the simulator's exact model (scripts/accuracy-scan-template;
+# GOLDEN_SEED draws the golden casting, ERRORS and CELL_SEED as above). Into docs/results.md.
+accuracy-scan: build
+	@ACCURACY_SEEDS='$(ACCURACY_SEEDS)' ERRORS='$(ERRORS)' CELL_SEED='$(CELL_SEED)' scripts/accuracy-scan-template $(BUILD_DIR)
 
 # Which error of a real cell matters most: each source of config/sim/errors-realistic.toml alone,
 # 0 to 2x its size (ROBUSTNESS_STEPS), on castings drawn once at run time (ROBUSTNESS_SEEDS);

@@ -358,6 +358,12 @@ std::string sha256_hex(const std::string& bytes) {
   return std::string(out, 64);
 }
 
+Transform T_base_camera_at(const Transform& T_base_camera, double slide_mm) {
+  Transform T = T_base_camera;
+  T.pretranslate(Vec3(slide_mm, 0.0, 0.0));
+  return T;
+}
+
 CalibrationIdentity calibration_identity(const CalibrationFile& c) {
   return CalibrationIdentity{c.id, c.date, c.sha256, c.source};
 }

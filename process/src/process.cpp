@@ -32,25 +32,6 @@ Error empty_view(std::size_t i, const View& view) {
                                           " mm) has no valid point: check the camera and its exposure"};
 }
 
-/// The views in the base (= fixture) frame, fused into one cloud when there are several.
-Result<vision::Cloud> fuse(const std::vector<View>& views, double jump_edge_mm) {
-  if (views.empty()) return Error{"pipeline.no_views", "step fuse: no views were captured"};
-  std::vector<vision::View> camera_views;
-  camera_views.reserve(views.size());
-  for (std::size_t i = 0; i < views.size(); ++i) {
-    vision::View v;
-    OrganizedCloud filtered;
-    v.cloud = vision::to_cloud(without_jump_edges(views[i].cloud, jump_edge_mm, filtered));
-    if (v.cloud.empty()) return empty_view(i, views[i]);
-    v.T_first_view = views.front().T_base_camera.inverse() * views[i].T_base_camera;
-    camera_views.push_back(std::move(v));
-  }
-  if (camera_views.size() == 1) return vision::transformed(camera_views.front().cloud, views.front().T_base_camera);
-  vision::FuseSettings fs;
-  auto fused = vision::fuse_views(camera_views, fs);
-  if (!fused) return step_error("fuse", fused.error());
-  return vision::transformed(fused->cloud, views.front().T_base_camera);
-}
 
 
 /// The transform with its rotation made exactly orthonormal (the nearest rotation): a pose from
@@ -68,6 +49,25 @@ bool selected(const ProcessOptions& options, const std::string& name) {
 }
 
 }  // namespace
+
+Result<vision::Cloud> fuse_in_base(const std::vector<View>& views, double jump_edge_mm) {
+  if (views.empty()) return Error{"pipeline.no_views", "step fuse: no views were captured"};
+  std::vector<vision::View> camera_views;
+  camera_views.reserve(views.size());
+  for (std::size_t i = 0; i < views.size(); ++i) {
+    vision::View v;
+    OrganizedCloud filtered;
+    v.cloud = vision::to_cloud(without_jump_edges(views[i].cloud, jump_edge_mm, filtered));
+    if (v.cloud.empty()) return empty_view(i, views[i]);
+    v.T_first_view = views.front().T_base_camera.inverse() * views[i].T_base_camera;
+    camera_views.push_back(std::move(v));
+  }
+  if (camera_views.size() == 1) return vision::transformed(camera_views.front().cloud, views.front().T_base_camera);
+  vision::FuseSettings fs;
+  auto fused = vision::fuse_views(camera_views, fs);
+  if (!fused) return step_error("fuse", fused.error());
+  return vision::transformed(fused->cloud, views.front().T_base_camera);
+}
 
 /// Locates the part and its regions in the views, each view without its flying pixels first
 /// when jump_edge_mm > 0. Organized views (the camera's) go to the vision stage as they are:
@@ -106,7 +106,7 @@ Result<vision::Inspection> locate(const LoadedRecipe& loaded, const std::vector<
     return ins;
   }
   report(progress, 0, total, "fuse");
-  auto scan = fuse(views, jump_edge_mm);
+  auto scan = fuse_in_base(views, jump_edge_mm);
   if (!scan) return scan.error();
   timings.push_back({"fuse", ms_since(t0)});
   t0 = Clock::now();

@@ -8,8 +8,10 @@
 #include <nlohmann/json.hpp>
 
 #include "fettle/cli/cli.hpp"
+#include "fettle/config/load.hpp"
 #include "fettle/core/atomic_file.hpp"
 #include "fettle/core/error.hpp"
+#include "fettle/vision/inspect.hpp"
 #include "sim_common.hpp"
 
 namespace {
@@ -20,6 +22,7 @@ struct Args {
   std::filesystem::path part, out;
   std::uint64_t seed = 1;
   bool golden = false;
+  bool fettled = false;
   std::filesystem::path png;
   app::ScannerOptions scanner;
   app::ErrorOptions errors;
@@ -29,10 +32,21 @@ int scan(const Args& a) {
   const auto budget = app::error_budget(a.errors);
   const auto recipe = app::world_of(fettle::config::load_part(a.part), budget);
   const auto t0 = std::chrono::steady_clock::now();
-  const Casting casting = a.golden ? Casting::golden(recipe, a.seed) : Casting::make(recipe, a.seed);
+  Casting casting = a.golden ? Casting::golden(recipe, a.seed) : Casting::make(recipe, a.seed);
+  if (a.fettled) {  // a golden casting as a foundry has one: hand-fettled, its form deviation kept
+    casting.remove_all_material();
+    casting.set_T_base_part(fettle::vision::nominal_T_fixture_part(recipe));
+  }
   std::fprintf(stderr, "built casting %llu of %s in %.2f s\n", static_cast<unsigned long long>(a.seed),
                recipe.id.c_str(), app::seconds_since(t0));
-  const auto nominal = app::scanner_config(a.scanner);
+  auto nominal = app::scanner_config(a.scanner);
+  if (!a.scanner.cell.empty()) {
+    // the camera where the cell's calibration says, as `fettle plan --calib` and `fettle template
+    // build --calib` take the views (fettle-sim cell places it so too)
+    const auto positions = nominal.photo_positions_mm;
+    nominal.place_in_cell(fettle::config::load_cell(a.scanner.cell));
+    nominal.photo_positions_mm = positions;
+  }
   std::optional<CellErrors> errors;
   if (budget) errors = draw_cell_errors(*budget, a.errors.cell_seed, nominal);
   const Scanner scanner(errors ? true_scanner(nominal, *errors) : nominal);
@@ -81,7 +95,11 @@ FETTLE_COMMAND("scan", [](CLI::App& app, const fettle::cli::Common&) {
   cmd->add_option("--part", a->part, "Part recipe with a [geometry] table")->required()->check(CLI::ExistingFile);
   cmd->add_option("--seed", a->seed, "Casting number (its flash, riser, form deviation and placement)");
   cmd->add_option("--out", a->out, "Output directory")->required();
-  cmd->add_flag("--golden", a->golden, "Scan the golden template (the part ground to specification)");
+  auto* golden = cmd->add_flag("--golden", a->golden, "Scan the golden template (the part ground to specification)");
+  cmd->add_flag("--fettled", a->fettled,
+                "Scan casting --seed hand-fettled (every flash and riser ground off, its form deviation kept) at the "
+                "fixture's nominal pose: the golden casting `fettle template build` makes a template from")
+      ->excludes(golden);
   cmd->add_option("--png", a->png, "Also write a PNG of view 0 coloured by height");
   app::add_scanner_options(cmd, a->scanner);
   app::add_error_options(cmd, a->errors);

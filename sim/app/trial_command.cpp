@@ -402,11 +402,17 @@ int trial(const Args& a) {
 
   auto t0 = std::chrono::steady_clock::now();
   fettle::process::LoadOptions lo;
-  lo.golden = golden_cloud(recipe, a.golden_spacing_mm);
-  lo.golden_identity = "fettle-sim golden " + recipe.id + " spacing " + std::to_string(a.golden_spacing_mm);
+  // The cell's template: the simulator's exact model, or the recipe's scan of a golden casting
+  // (`fettle template build`) as a real cell has it.
+  const bool scanned = recipe.template_source.kind == "scan";
+  if (!scanned) {
+    lo.golden = golden_cloud(recipe, a.golden_spacing_mm);
+    lo.golden_identity = "fettle-sim golden " + recipe.id + " spacing " + std::to_string(a.golden_spacing_mm);
+  }
   const auto loaded = fettle::process::load_recipe(recipe, lo);
-  std::fprintf(stderr, "recipe %s loaded in %.1f s (template %zu points%s)\n", recipe.id.c_str(),
-               app::seconds_since(t0), loaded.templ.whole().fine().size(), loaded.template_from_cache ? ", cached" : "");
+  std::fprintf(stderr, "recipe %s loaded in %.1f s (template %zu points%s, %s)\n", recipe.id.c_str(),
+               app::seconds_since(t0), loaded.templ.whole().fine().size(), loaded.template_from_cache ? ", cached" : "",
+               scanned ? ("from the scan " + loaded.golden_file.string()).c_str() : "the simulator's exact model");
   const auto golden_samples = Casting::golden(recipe, 0).sample_golden_surface(a.golden_spacing_mm);
 
   // The pipeline's "material left" warning would land in the middle of a seed's progress line:

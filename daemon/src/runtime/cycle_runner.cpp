@@ -138,10 +138,8 @@ asio::awaitable<bool> Runtime::Impl::slide_to(Cycle& c, int target) {
 }
 
 Transform Runtime::Impl::T_base_camera_at(double slide_mm) const {
-  Transform T = calibration && calibration->T_base_camera ? *calibration->T_base_camera : Transform::Identity();
-  // The calibration holds the camera pose with the slide at 0 mm; the slide moves along base +x.
-  T.pretranslate(Vec3(slide_mm, 0.0, 0.0));
-  return T;
+  return config::T_base_camera_at(
+      calibration && calibration->T_base_camera ? *calibration->T_base_camera : Transform::Identity(), slide_mm);
 }
 
 asio::awaitable<bool> Runtime::Impl::capture(Cycle& c, int position, std::vector<View>& out, const std::string& stem) {

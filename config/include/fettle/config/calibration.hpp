@@ -78,6 +78,9 @@ struct CalibrationIdentity {
 
 /// The identity of a loaded calibration file (no file access: the hash was taken when it was read).
 CalibrationIdentity calibration_identity(const CalibrationFile& calibration);
+/// The camera's pose with the slide at slide_mm: the calibration holds it with the slide at
+/// 0 mm, and the slide moves the camera along base +x.
+Transform T_base_camera_at(const Transform& T_base_camera, double slide_mm);
 /// One robot pose of a live hand-eye calibration (`fettle calibrate hand-eye --live --poses`).
 struct CalibrationPose {
   std::string name;        ///< default "pose<N>"

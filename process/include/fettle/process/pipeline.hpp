@@ -199,6 +199,36 @@ Result<ProcessOutput> process(const LoadedRecipe& recipe, const config::CellConf
                               const std::vector<View>& views, const ProcessOptions& options,
                               const Progress& progress = {});
 
+/// The views in the base (= fixture) frame, each without its flying pixels first when
+/// jump_edge_mm > 0, fused into one cloud when there are several (vision::fuse_views refines
+/// each view's slide pose against the first).
+Result<vision::Cloud> fuse_in_base(const std::vector<View>& views, double jump_edge_mm = 0.0);
+
+/// `fettle template build` ([template] source = "scan"): the golden casting's template from
+/// views of it lying on the fixture as the castings will.
+struct TemplateBuildSettings {
+  double voxel_mm = 0.25;        ///< the template's point spacing
+  double above_table_mm = 1.0;   ///< points lower than this over the table (the part frame's z = 0) are the table
+  double cluster_gap_mm = 2.0;   ///< the casting is the largest piece no gap wider than this divides (clamps, clutter)
+  int normal_neighbours = 16;    ///< normals: PCA over this many neighbours
+  /// The casting's box in the part frame (from its drawing, with a margin), when given
+  /// (box_min_mm < box_max_mm): a clamp 10 mm from the casting is joined to it by the views'
+  /// mixed pixels (a veil down each occluding edge), which the largest piece cannot cut.
+  Vec3 box_min_mm = Vec3::Zero();
+  Vec3 box_max_mm = Vec3::Zero();
+};
+struct BuiltTemplate {
+  vision::Cloud cloud;             ///< part frame (the fixture's nominal), mm, with outward normals
+  std::size_t fused_points = 0;    ///< the views' points fused
+  std::size_t dropped_points = 0;  ///< above the table but not on the casting (clamps, clutter)
+};
+/// Fuses the views, takes them into the part frame by the fixture's nominal pose, drops the
+/// table and everything not joined to the casting, downsamples to voxel_mm and estimates
+/// normals, each turned towards the camera that saw it. An Error (code "template.empty" or the
+/// fuse step's) when no casting is seen. Test TemplateBuild.* (tests/process/test_template_build.cpp).
+Result<BuiltTemplate> build_template(const config::PartRecipe& recipe, const std::vector<View>& views,
+                                     const TemplateBuildSettings& settings = {});
+
 /// Writes trajectory.json, trajectory.csv and preview.png of a processed cycle into `dir`.
 Status write_outputs(const std::filesystem::path& dir, const ProcessOutput& output);
 
