@@ -79,13 +79,16 @@ class SimCli : public ::testing::Test {
     const auto recipe = sim_test::pump_body();
     const auto c = fettle::sim::Casting::make(recipe, seed);
     const auto& f = recipe.geometry.straight_flashes.at(0);
-    const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
     fettle::Trajectory t;
     t.part_id = recipe.id;
     t.segment_regions = {f.region};
-    for (double s : {-8.0, f.length_mm.max + 8.0}) {
+    // along the fin, clearance_mm over the casting's own face (its form deviation kept: the fin
+    // stands on it), every 2 mm
+    for (double s = -8.0; s <= f.length_mm.max + 8.0 + 1e-9; s += 2.0) {
+      const double x = f.start_mm[0] + s, y = f.start_mm[1];
+      const double face = c.golden_top_z_mm(f.start_mm[0], y) + c.form_deviation_mm(x, y);
       fettle::TrajectoryPoint q;
-      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face + clearance_mm);  // TCP at the ball's tip
+      q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(x, y, face + clearance_mm);  // TCP at the ball's tip
       q.speed_mm_s = 20;
       q.spindle_rpm = 9000;
       t.points.push_back(q);
