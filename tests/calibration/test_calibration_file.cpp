@@ -19,6 +19,17 @@ fs::path temp_dir() {
   return d;
 }
 
+/// The scratch folder goes when the test process ends (ctest runs each test in one of its own).
+struct RemoveTempDir {
+  RemoveTempDir() = default;
+  RemoveTempDir(const RemoveTempDir&) = delete;
+  RemoveTempDir& operator=(const RemoveTempDir&) = delete;
+  ~RemoveTempDir() {
+    std::error_code ec;
+    fs::remove_all(fs::temp_directory_path() / ("fettle-calfile-" + std::to_string(::getpid())), ec);
+  }
+} const remove_temp_dir;
+
 fs::path write(const std::string& name, const std::string& text) {
   const auto p = temp_dir() / name;
   std::ofstream(p) << text;
