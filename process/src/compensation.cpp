@@ -165,14 +165,18 @@ constexpr std::size_t kMinWearMeasurements = 3;
 /// is left once the offset is fitted (measure_cut_offset()).
 constexpr double kSeparableShare = 0.3;
 
-/// The projector onto the directions of b-space a fit's solved span holds whole.
-Eigen::Matrix3d observed_part(const Eigen::Matrix3d& solved) {
+/// The projector onto the span of a symmetric positive semi-definite matrix's eigenvectors
+/// whose eigenvalues are at least `least` (a projector's are 0 or 1).
+Eigen::Matrix3d projector_onto(const Eigen::Matrix3d& M, double least) {
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (M + M.transpose()));
   Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (solved + solved.transpose()));
   for (int k = 0; k < 3; ++k)
-    if (eig.eigenvalues()(k) >= kObservedShare) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
+    if (eig.eigenvalues()(k) >= least) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
   return P;
 }
+
+/// The projector onto the directions of b-space a fit's solved span holds whole.
+Eigen::Matrix3d observed_part(const Eigen::Matrix3d& solved) { return projector_onto(solved, kObservedShare); }
 
 struct Sample {
   double sd;
@@ -385,20 +389,18 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
 
 namespace {
 
-/// The projector onto the span of a symmetric positive semi-definite matrix's eigenvectors
-/// whose eigenvalues are at least half the largest possible one (a projector's 1).
-Eigen::Matrix3d projector_onto(const Eigen::Matrix3d& M) {
-  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(0.5 * (M + M.transpose()));
-  Eigen::Matrix3d P = Eigen::Matrix3d::Zero();
-  for (int k = 0; k < 3; ++k)
-    if (eig.eigenvalues()(k) >= 0.5) P += eig.eigenvectors().col(k) * eig.eigenvectors().col(k).transpose();
-  return P;
-}
 
 nlohmann::ordered_json matrix_to_json(const Eigen::Matrix3d& M) {
   nlohmann::ordered_json rows = nlohmann::ordered_json::array();
   for (int r = 0; r < 3; ++r) rows.push_back({M(r, 0), M(r, 1), M(r, 2)});
   return rows;
+}
+
+/// A finite [x, y, z] (`what` names it in the error).
+Vec3 vec3_from_json(const nlohmann::json& v, const std::string& what) {
+  const Vec3 out(v.at(0).get<double>(), v.at(1).get<double>(), v.at(2).get<double>());
+  if (!out.allFinite()) throw std::invalid_argument(what + " is not finite");
+  return out;
 }
 
 /// A 3x3 matrix as rows; absent: zero (learned along no direction: the full stated error is kept).
@@ -423,7 +425,7 @@ Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSecti
   const Vec3 innovation = measured.observed * (measured.offset_mm - bias_mm);
   bias_mm += settings.gain * innovation;
   scatter_mm2 = (1.0 - settings.gain) * scatter_mm2 + settings.gain * innovation * innovation.transpose();
-  learned = projector_onto(learned + measured.observed);
+  learned = projector_onto(learned + measured.observed, 0.5);  // half a projector's 1
   if (const double n = bias_mm.norm(); n > settings.max_offset_mm && n > 0.0) bias_mm *= settings.max_offset_mm / n;
   ++updates;
   for (const auto& [name, m] : measured.regions) {
@@ -431,7 +433,7 @@ Vec3 CellBias::update(const CutOffset& measured, const config::CompensationSecti
     auto& r = regions[name];
     Vec3 own = from + settings.gain * (m.observed * (m.offset_mm - from));
     if (const double n = own.norm(); n > settings.max_offset_mm && n > 0.0) own *= settings.max_offset_mm / n;
-    r.learned = projector_onto(r.learned + m.observed);
+    r.learned = projector_onto(r.learned + m.observed, 0.5);
     r.bias_mm = r.learned * own;
     r.tool = m.tool;
     ++r.updates;
@@ -625,14 +627,14 @@ RegrindCompensation regrind_compensation(const config::SafetySection& safety, co
     p.bound_mm2 = Q * bound * Q + P * (repeatability2 * I + scatter) * P;
     return p;
   };
-  const auto whole = take(cell.bias_mm, placement_uncertainty(safety, cell, settings).bound_mm2, measured.observed,
-                          measured.offset_mm, measured.std_mm);
+  const Eigen::Matrix3d usual = placement_uncertainty(safety, cell, settings).bound_mm2;
+  const auto whole = take(cell.bias_mm, usual, measured.observed, measured.offset_mm, measured.std_mm);
   out.bias_mm = whole.bias_mm;
   out.placement.bound_mm2 = whole.bound_mm2;
   for (const auto& [name, r] : measured.regions)
     out.regions[name] = take(whole.bias_mm, whole.bound_mm2, r.observed, r.offset_mm, r.std_mm);
   // a region not measured this time keeps what the cell learned of it
-  for (const auto& [name, p] : cell.region_placement(placement_uncertainty(safety, cell, settings).bound_mm2))
+  for (const auto& [name, p] : cell.region_placement(usual))
     out.regions.emplace(name, p);
   return out;
 }
@@ -650,9 +652,7 @@ Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
   try {
     const auto j = nlohmann::json::parse(text.str());
     CellBias b;
-    const auto& v = j.at("bias_mm");
-    b.bias_mm = Vec3(v.at(0).get<double>(), v.at(1).get<double>(), v.at(2).get<double>());
-    if (!b.bias_mm.allFinite()) throw std::invalid_argument("bias_mm is not finite");
+    b.bias_mm = vec3_from_json(j.at("bias_mm"), "bias_mm");
     b.updates = j.value("updates", std::size_t{0});
     b.calibration_id = j.value("calibration_id", std::string{});
     b.tools_id = j.value("tools_id", std::string{});
@@ -674,9 +674,7 @@ Result<CellBias> load_cell_bias(const std::filesystem::path& file) {
     if (j.contains("regions"))
       for (const auto& [name, r] : j.at("regions").items()) {
         RegionBias rb;
-        const auto& rv = r.at("bias_mm");
-        rb.bias_mm = Vec3(rv.at(0).get<double>(), rv.at(1).get<double>(), rv.at(2).get<double>());
-        if (!rb.bias_mm.allFinite()) throw std::invalid_argument("regions." + name + ".bias_mm is not finite");
+        rb.bias_mm = vec3_from_json(r.at("bias_mm"), "regions." + name + ".bias_mm");
         rb.learned = matrix_from_json(r, "learned");
         rb.tool = r.value("tool", std::string{});
         rb.updates = r.value("updates", std::size_t{0});

@@ -32,8 +32,6 @@ Error empty_view(std::size_t i, const View& view) {
                                           " mm) has no valid point: check the camera and its exposure"};
 }
 
-
-
 /// The transform with its rotation made exactly orthonormal (the nearest rotation): a pose from
 /// single-precision registration maps lengths off by up to ~1e-7, and its Isometry inverse (the
 /// transpose) then takes a point 100 mm out back to within only ~1e-5 mm of where it was.

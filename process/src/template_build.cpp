@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstdint>
 #include <deque>
+#include <limits>
 #include <unordered_map>
 
 #include "fettle/process/pipeline.hpp"
@@ -22,33 +23,27 @@ constexpr std::size_t kMinRegionPoints = 50;
 /// The indices of the largest piece of `points` no gap wider than `gap` divides: connected
 /// components of the occupied cells of a `gap` grid (26-neighbours).
 std::vector<std::size_t> largest_piece(const std::vector<Eigen::Vector3f>& points, double gap) {
-  const auto key = [gap](const Eigen::Vector3f& p) {
-    const auto c = [gap](float v) { return static_cast<std::int64_t>(std::floor(static_cast<double>(v) / gap)); };
-    return std::array<std::int64_t, 3>{c(p.x()), c(p.y()), c(p.z())};
-  };
-  const auto pack = [](const std::array<std::int64_t, 3>& k) {
-    return ((k[0] & 0x1FFFFF) << 42) | ((k[1] & 0x1FFFFF) << 21) | (k[2] & 0x1FFFFF);
-  };
+  const CellKeys keys{gap};
   std::unordered_map<std::int64_t, std::vector<std::size_t>> cells;
-  for (std::size_t i = 0; i < points.size(); ++i) cells[pack(key(points[i]))].push_back(i);
+  for (std::size_t i = 0; i < points.size(); ++i) cells[keys.key(points[i].cast<double>())].push_back(i);
   std::unordered_map<std::int64_t, int> label;
   std::vector<std::size_t> best;
   int next = 0;
   for (const auto& [start, members] : cells) {
     if (label.count(start) != 0) continue;
     std::vector<std::size_t> piece;
-    std::deque<std::array<std::int64_t, 3>> todo{key(points[members.front()])};
+    std::deque<std::array<std::int64_t, 3>> todo{keys.coords(points[members.front()].cast<double>())};
     label[start] = next;
     while (!todo.empty()) {
       const auto k = todo.front();
       todo.pop_front();
-      const auto& in = cells.at(pack(k));
+      const auto& in = cells.at(CellKeys::pack(k[0], k[1], k[2]));
       piece.insert(piece.end(), in.begin(), in.end());
       for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
           for (int dx = -1; dx <= 1; ++dx) {
             const std::array<std::int64_t, 3> n{k[0] + dx, k[1] + dy, k[2] + dz};
-            const auto p = pack(n);
+            const auto p = CellKeys::pack(n[0], n[1], n[2]);
             if (cells.count(p) == 0 || label.count(p) != 0) continue;
             label[p] = next;
             todo.push_back(n);
@@ -75,12 +70,11 @@ Result<BuiltTemplate> build_template(const config::PartRecipe& recipe, const std
   vision::Cloud part = vision::transformed(*fused, T_part_base);
   part.normals.clear();
   const bool boxed = (settings.box_min_mm.array() < settings.box_max_mm.array()).all();
-  const Eigen::Vector3f lo = settings.box_min_mm.cast<float>(), hi = settings.box_max_mm.cast<float>();
-  vision::Cloud above;
-  for (const auto& p : part.points)
-    if (static_cast<double>(p.z()) > settings.above_table_mm &&
-        (!boxed || ((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all())))
-      above.points.push_back(p);
+  constexpr double kAll = std::numeric_limits<double>::max();
+  Vec3 lo = boxed ? settings.box_min_mm : Vec3(-kAll, -kAll, -kAll);
+  const Vec3 hi = boxed ? settings.box_max_mm : Vec3(kAll, kAll, kAll);
+  lo.z() = std::max(lo.z(), settings.above_table_mm);
+  const vision::Cloud above = vision::crop_box(part, Transform::Identity(), lo, hi);
   if (above.points.size() < 100)
     return Error{"template.empty", "the views hold " + std::to_string(above.points.size()) + " points more than " +
                                        std::to_string(settings.above_table_mm) +
@@ -100,11 +94,8 @@ Result<BuiltTemplate> build_template(const config::PartRecipe& recipe, const std
   std::vector<Eigen::Vector3f> seen_from(piece.size(), Eigen::Vector3f(0.0F, 0.0F, 1e4F));
   {
     std::unordered_map<std::int64_t, Eigen::Vector3f> camera_at;  // by 2 mm cell: the camera nearest above
-    const double cell = 2.0;
-    const auto pack = [cell](const Eigen::Vector3f& p) {
-      const auto c = [cell](float v) { return static_cast<std::int64_t>(std::floor(static_cast<double>(v) / cell)); };
-      return ((c(p.x()) & 0x1FFFFF) << 42) | ((c(p.y()) & 0x1FFFFF) << 21) | (c(p.z()) & 0x1FFFFF);
-    };
+    const CellKeys keys{2.0};
+    const auto pack = [&keys](const Eigen::Vector3f& p) { return keys.key(p.cast<double>()); };
     for (const auto& v : views) {
       const Transform T_part_camera = T_part_base * v.T_base_camera;
       const Eigen::Vector3f eye = T_part_camera.translation().cast<float>();
