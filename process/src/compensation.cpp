@@ -36,7 +36,8 @@ class ToolIndex {
   /// The smallest signed distance of q to any pose's tool, with that tool's normal, the share of
   /// the normal across the tool's axis (1 on a ball and a cylinder's side, 0 on its flat end:
   /// how much of a smaller radius shows there) and the tool's index; false when no pose is near.
-  bool nearest(const Vec3& q, double& sd, Vec3& normal, double& radial, std::size_t& tool) const {
+  bool nearest(const Vec3& q, double& sd, Vec3& normal, double& radial, std::size_t& tool,
+               std::size_t* pose = nullptr) const {
     const auto it = cells_.find(keys_.key(q));
     if (it == cells_.end()) return false;
     bool found = false;
@@ -50,9 +51,11 @@ class ToolIndex {
       const auto& p = poses_[best];
       radial = p.ball ? 1.0 : std::clamp((normal - normal.dot(p.axis) * p.axis).norm(), 0.0, 1.0);
       tool = tools_[best];
+      if (pose != nullptr) *pose = best;
     }
     return found;
   }
+  [[nodiscard]] const ToolSolid& pose(std::size_t i) const { return poses_[i]; }
   [[nodiscard]] bool empty() const { return poses_.empty(); }
 
  private:
@@ -122,6 +125,12 @@ class HeightColumns {
     if (it == top_.end()) return std::nullopt;
     return static_cast<double>(it->second.z) - q.z();
   }
+  /// The highest point's height over q's column (nullopt: none seen there).
+  [[nodiscard]] std::optional<double> top(const Vec3& q) const {
+    const auto it = top_.find(key(q.x(), q.y()));
+    if (it == top_.end()) return std::nullopt;
+    return static_cast<double>(it->second.z);
+  }
   /// How far the lowest surface the first scan saw in q's column stood above q: a surface at
   /// q's height in the column (beside a fin, round a riser's foot) may be where the tool only
   /// passed by (nullopt: the first scan saw nothing there).
@@ -184,7 +193,64 @@ struct Sample {
   double radial;       // share of n across the tool's axis
   std::size_t tool;    // index into the recipe's tools
   std::size_t region;  // index into the verification's regions
+  bool edge = false;   // on a stub's edge (add_stub_edges), not on a cut surface
 };
+
+/// The edge a wheel's side left in a surface it cut part of: re-scan points (base frame) of a
+/// surface that still stands as the first scan saw it, inside the commanded tool, where the same
+/// surface went on further into the tool in the first scan and is gone in the re-scan. There the
+/// real wheel stopped: such a point lies on the real tool's surface, sd = n . b - w like a cut
+/// surface's (fettle/process/compensation.hpp), inside the commanded tool or outside it. A ring's fin ground by a disc's side leaves such
+/// a stub round the flange: the wall it is measured against stands edge-on to the camera and
+/// shows nothing, the stub's top does (docs/compensation.md, "A wheel's radius from its stub").
+/// Per bin of stub_bin_mm over the nearest pose's tip, the stub's outer edge is its deepest
+/// point into the tool (a robust one: the fifth deepest in a hundred); the points within
+/// stub_edge_mm of it are the samples. Points nearer the wall than that, and the tool's flat end
+/// over an untouched face, are left out. Test Compensation.AWornDiscShowsItsRadiusInTheStubItLeaves.
+void add_stub_edges(const VerificationResult& after, const ToolIndex& tools, const HeightColumns& first_scan,
+                    const CutOffsetSettings& settings, std::vector<Sample>& samples) {
+  HeightColumns rescan(nullptr, settings.stub_column_mm);
+  for (const auto& r : after.regions)
+    for (const auto& p : r.roi_points_part) rescan.add(r.T_base_region * p.cast<double>());
+  const CellKeys bins{settings.stub_bin_mm};
+  std::map<std::pair<std::size_t, std::int64_t>, std::vector<Sample>> by_bin;
+  for (const auto& r : after.regions) {
+    const Eigen::Isometry3d T = r.T_base_region;
+    for (const auto& p : r.roi_points_part) {
+      const Vec3 q = T * p.cast<double>();
+      // a surface the first scan saw at this height: not removed
+      const auto top = first_scan.top(q);
+      if (!top || std::abs(*top - q.z()) >= settings.removed_min_mm) continue;
+      Sample s{};
+      s.region = static_cast<std::size_t>(&r - after.regions.data());
+      std::size_t pose = 0;
+      if (!tools.nearest(q, s.sd, s.n, s.radial, s.tool, &pose) || s.sd > settings.band_mm ||
+          s.sd < -settings.stub_band_mm || s.radial < 0.5)
+        continue;
+      // one step further into the tool across its axis: the first scan's surface went on at this
+      // height, the re-scan's is lower (cut away)
+      Vec3 in(-s.n.x(), -s.n.y(), 0.0);
+      if (in.norm() < 0.5) continue;
+      const Vec3 beyond = q + settings.column_mm * in.normalized();
+      const auto was = first_scan.top(beyond), now = rescan.top(beyond);
+      if (!was || std::abs(*was - q.z()) >= 2.0 * settings.removed_min_mm ||
+          (now && *now > q.z() - settings.removed_min_mm))
+        continue;
+      by_bin[{s.region, bins.key(tools.pose(pose).a)}].push_back(s);
+
+    }
+  }
+  for (auto& [bin, edge] : by_bin) {
+    if (edge.size() < 3) continue;
+    std::sort(edge.begin(), edge.end(), [](const Sample& a, const Sample& b) { return a.sd < b.sd; });
+    const double deepest = edge[edge.size() / 20].sd;
+    for (const auto& s : edge)
+      if (s.sd >= deepest && s.sd <= deepest + settings.stub_edge_mm) {
+        samples.push_back(s);
+        samples.back().edge = true;
+      }
+  }
+}
 
 /// A robust least-squares fit sd_i = a_i . x over samples (rows a_i from `row`): points off the
 /// fit by more than a shrinking gate are left out (material the tool did not reach, a
@@ -283,94 +349,84 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
       samples.push_back(s);
     }
   }
+  add_stub_edges(after, tools, first_scan, settings, samples);
   if (samples.size() < settings.min_points)
     return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(samples.size()) +
                                             " re-scanned points near the commanded tool surface where material was "
                                             "removed (at least " + std::to_string(settings.min_points) + ")"};
-  // The unknowns: the offset b (3) and one radius loss per tool whose own cut surfaces show its
-  // radius apart from b (a column each): on that tool's surfaces alone, what is left of its
-  // column's information once b is fitted must be at least kSeparableShare of it. A groove's
-  // bottom, cut by a ball, looks up: its radius and the offset's height move it alike, and the
-  // column is left out (the offset takes it). Another tool's surfaces elsewhere do not tell it
-  // apart: the offset there is not the offset here (a hand-eye rotation of 0.05 deg moves the
-  // cut 0.09 mm over the part's 100 mm). A disc's side round a ring shows its radius.
+  // Each wheel's radius loss w_t, fitted with an offset of its own on its own cut surfaces:
+  // sd_i = n_i . b_t - c_i w_t. Another tool's surfaces elsewhere do not tell it apart: the
+  // offset there is not the offset here (a hand-eye rotation of 0.05 deg moves the cut 0.09 mm
+  // over the part's 100 mm, and one offset for both gates the disc's stub out as outliers). The
+  // column is fitted when what is left of its information once b_t is fitted is at least
+  // kSeparableShare of it: a groove's bottom, cut by a ball, looks up, and its radius and the
+  // offset's height move it alike (the offset takes it); a disc's side round a ring shows its
+  // radius.
   const auto& recipe_tools = loaded.recipe.tools;
-  std::vector<int> column(recipe_tools.size(), -1);
-  int n = 3;
-  const auto renumber = [&](const std::vector<bool>& keep) {
-    n = 3;
-    for (std::size_t t = 0; t < recipe_tools.size(); ++t) column[t] = keep[t] ? n++ : -1;
-  };
-  {
-    std::vector<double> radial_weight(recipe_tools.size(), 0.0);
-    for (const auto& s : samples) radial_weight[s.tool] += s.radial * s.radial;
-    std::vector<bool> keep(recipe_tools.size());
-    for (std::size_t t = 0; t < recipe_tools.size(); ++t)
-      keep[t] = radial_weight[t] >= static_cast<double>(settings.min_points);
-    for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
-      if (!keep[t]) continue;
-      Eigen::Matrix4d N = Eigen::Matrix4d::Zero();  // (b, w_t) on tool t's samples
-      for (const auto& s : samples) {
-        if (s.tool != t) continue;
-        Eigen::Vector4d a;
-        a << s.n, -s.radial;
-        N.noalias() += a * a.transpose();
-      }
-      const double ridge = 1e-6 * std::max(1.0, N.trace() / 4.0);
-      const Eigen::Matrix4d inv = (N + ridge * Eigen::Matrix4d::Identity()).inverse();
-      keep[t] = 1.0 / inv(3, 3) >= kSeparableShare * N(3, 3);
+  const std::vector<double> gates{settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15};
+  std::vector<double> wear_of(recipe_tools.size(), 0.0);
+  CutOffset out;
+  for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
+    std::vector<Sample> own;
+    double radial_weight = 0.0;
+    Eigen::Matrix4d N = Eigen::Matrix4d::Zero();  // (b_t, w_t)
+    for (const auto& s : samples) {
+      if (s.tool != t) continue;
+      own.push_back(s);
+      radial_weight += s.radial * s.radial;
+      Eigen::Vector4d a;
+      a << s.n, -s.radial;
+      N.noalias() += a * a.transpose();
     }
-    renumber(keep);
+    if (radial_weight < static_cast<double>(settings.min_points)) continue;
+    const double ridge = 1e-6 * std::max(1.0, N.trace() / 4.0);
+    const Eigen::Matrix4d inv = (N + ridge * Eigen::Matrix4d::Identity()).inverse();
+    if (1.0 / inv(3, 3) < kSeparableShare * N(3, 3)) continue;
+    const RobustFit tf = robust_fit(
+        own,
+        [](const Sample& s) {
+          Eigen::VectorXd a(4);
+          a << s.n, -s.radial;  // a smaller wheel cuts less far out
+          return a;
+        },
+        4, Eigen::VectorXd::Zero(4), gates, recipe_tools.size(), settings.min_points);
+    // observed when it lies in the span the fit solved
+    if (tf.used < settings.min_points || tf.solved(3, 3) < kObservedShare) continue;
+    wear_of[t] = tf.x(3);
+    out.tools[recipe_tools[t].name] =
+        ToolWearMeasured{tf.x(3), std::sqrt(std::max(0.0, tf.cov(3, 3))), tf.tool_points[t]};
   }
-  const auto row = [&](const Sample& s) {
-    Eigen::VectorXd a = Eigen::VectorXd::Zero(n);
-    a.head<3>() = s.n;
-    if (column[s.tool] >= 0) a(column[s.tool]) = -s.radial;  // a smaller wheel cuts less far out
-    return a;
-  };
-  // Robust least squares sd_i = a_i . x; an unknown counts as observed when it lies in the span
-  // the fit solved (a ball's radius alone against a cut that looks up is not told apart from
-  // the offset's height).
-  const RobustFit fit = robust_fit(samples, row, n, Eigen::VectorXd::Zero(n),
-                                   {settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15},
-                                   recipe_tools.size(), settings.min_points);
-  const Eigen::VectorXd& x = fit.x;
-  const Eigen::MatrixXd& S = fit.solved;
-  const Eigen::MatrixXd& cov = fit.cov;
-  const double sigma = fit.sigma;
-  const std::size_t used = fit.used;
-  const std::vector<std::size_t>& tool_points = fit.tool_points;
+  // The whole cut's offset: b on every sample, each as if its wheel were as commanded. A stub's
+  // edge whose wheel's radius is not measured is left out: it stands that radius inside the
+  // commanded tool, and where the edges cover part of the ring only, the offset would take it.
+  std::erase_if(samples, [&](const Sample& s) {
+    return s.edge && out.tools.count(recipe_tools[s.tool].name) == 0;
+  });
+  for (auto& s : samples) s.sd += s.radial * wear_of[s.tool];
+  const RobustFit fit = robust_fit(
+      samples, [](const Sample& s) { return Eigen::VectorXd(s.n); }, 3, Eigen::VectorXd::Zero(3), gates,
+      recipe_tools.size(), settings.min_points);
   // the offset's observed directions: those of b-space the solved span holds whole
-  const Eigen::Matrix3d P = observed_part(S.topLeftCorner<3, 3>());
-  if (used < settings.min_points || P.trace() < 0.5)
-    return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(used) +
+  const Eigen::Matrix3d P = observed_part(fit.solved);
+  if (fit.used < settings.min_points || P.trace() < 0.5)
+    return Error{"compensation.no_cut", "no cut to measure: " + std::to_string(fit.used) +
                                             " re-scanned points lie on the commanded tool surface (at least " +
                                             std::to_string(settings.min_points) + " along one direction)"};
-  CutOffset out;
-  out.offset_mm = P * x.head<3>();
+  const Vec3 b = fit.x;
+  out.offset_mm = P * b;
   out.observed = P;
-  const Eigen::Matrix3d cov_b = P * cov.topLeftCorner<3, 3>() * P;
-  out.std_mm = cov_b.diagonal().cwiseMax(0.0).cwiseSqrt();
-  out.points = used;
-  out.rms_mm = sigma;
-  for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
-    const int c = column[t];
-    if (c < 0 || S(c, c) < kObservedShare) continue;
-    out.tools[recipe_tools[t].name] = ToolWearMeasured{x(c), std::sqrt(std::max(0.0, cov(c, c))), tool_points[t]};
-  }
-  // Each region's own offset: b alone on its samples, the wheels' radii as the whole fit has
-  // them, started from the whole cut's offset.
+  out.std_mm = (P * Eigen::Matrix3d(fit.cov) * P).diagonal().cwiseMax(0.0).cwiseSqrt();
+  out.points = fit.used;
+  out.rms_mm = fit.sigma;
+  // Each region's own offset: b alone on its samples (the wheels as commanded, as above),
+  // started from the whole cut's offset.
   for (std::size_t r = 0; r < after.regions.size(); ++r) {
     std::vector<Sample> own;
     for (const auto& s : samples)
-      if (s.region == r) {
-        Sample o = s;
-        if (column[s.tool] >= 0) o.sd += s.radial * x(column[s.tool]);  // as if the wheel were as commanded
-        own.push_back(o);
-      }
+      if (s.region == r) own.push_back(s);
     if (own.size() < settings.min_points) continue;
     const RobustFit rf = robust_fit(
-        own, [](const Sample& s) { return Eigen::VectorXd(s.n); }, 3, Eigen::VectorXd(x.head<3>()),
+        own, [](const Sample& s) { return Eigen::VectorXd(s.n); }, 3, Eigen::VectorXd(b),
         {0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15}, recipe_tools.size(), settings.min_points);
     if (rf.used < settings.min_points) continue;
     const Eigen::Matrix3d Pr = observed_part(rf.solved);
@@ -636,6 +692,16 @@ RegrindCompensation regrind_compensation(const config::SafetySection& safety, co
   // a region not measured this time keeps what the cell learned of it
   for (const auto& [name, p] : cell.region_placement(usual))
     out.regions.emplace(name, p);
+  return out;
+}
+
+ToolWearMm regrind_tool_wear(const ToolWearMm& cell_least, const CutOffset& measured, const ToolWearMm& commanded) {
+  ToolWearMm out = cell_least;
+  for (const auto& [name, m] : measured.tools) {
+    const auto c = commanded.find(name);
+    const double least = (c == commanded.end() ? 0.0 : c->second) + m.wear_mm - 2.0 * m.std_mm;
+    out[name] = std::max(out[name], least);
+  }
   return out;
 }
 

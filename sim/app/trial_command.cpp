@@ -628,13 +628,15 @@ int trial(const Args& a) {
       }
       ro.before = &out->inspection;
       ro.before_plans = &out->plans;
-      if (learning) {  // with this cycle's grind's
+      if (learning) {  // with this cycle's grind's, and the wear its cut showed
         ro.tool_wear_mm = cell_bias.tool_wear_mm(recipe);
         ro.tool_wear_most_mm = cell_bias.tool_wear_most_mm(recipe);
+        if (cut_offset) ro.tool_wear_mm = fettle::process::regrind_tool_wear(ro.tool_wear_mm, *cut_offset, popt.tool_wear_mm);
       }
       std::fprintf(stderr, ", re-grind");
       json rg;
       rg["regions"] = ro.regions;
+      rg["tool_wear_commanded_mm"] = ro.tool_wear_mm;
       auto again = fettle::process::process(loaded, cell, rescan.views, ro);
       if (!again) {
         rg["error"] = again.error().message;

@@ -452,6 +452,90 @@ TEST(Compensation, AWornDiscsRadiusIsMeasuredApartFromTheOffset) {
   EXPECT_NEAR(again->tools.at("chamfer-disc").wear_mm, 0.1, 0.02);
 }
 
+/// A ring's fin as the cell's camera sees it from above, before and after a disc's side ground
+/// it: the flange (r < 45, its top at z = 15), the fin standing out of its wall to r = 48 (its
+/// top at z = 0.5) and the body's top at z = -12 beyond. The disc (axis vertical, its 6 mm
+/// height centred on z = 0) is commanded round the flange `clearance` off the wall; it really
+/// went `offset` off that and was `wear` smaller, so the fin's stub reaches out to
+/// 45 + clearance + wear + offset . u. The wall is edge-on: the stub's top is all the re-scan
+/// shows of the disc's side. `ground` false: the disc never came (the re-scan is the first scan).
+Cut ring_fin(const Vec3& offset, double wear, double clearance, double noise_mm, unsigned seed, bool ground = true) {
+  CutStart s("ring", noise_mm, seed);
+  Cut& c = s.c;
+  for (int i = 0; i < 360; ++i) {
+    const double a = i * M_PI / 180.0;
+    fettle::TrajectoryPoint p;
+    p.T_base_tool.position_mm = (45.0 + clearance + 20.0) * Vec3(std::cos(a), std::sin(a), 0.0) - Vec3(0, 0, 3.0);
+    p.kind = fettle::MoveKind::grind;
+    c.commanded.points.push_back(p);
+  }
+  constexpr double kPixel = 0.15;  // the camera's pitch on the part at 600 mm
+  for (double x = -52; x <= 52; x += kPixel)
+    for (double y = -52; y <= 52; y += kPixel) {
+      const double r = std::hypot(x, y);
+      if (r < 40.0 || r > 52.0) continue;
+      const Vec3 u(x / r, y / r, 0.0);
+      const double stub = ground ? 45.0 + clearance + wear + offset.dot(u) : 48.0;
+      const auto height = [&](double fin) { return r < 45.0 ? 15.0 : r < fin ? 0.5 : -12.0; };
+      c.before.scene_part.points.emplace_back(static_cast<float>(x), static_cast<float>(y),
+                                              static_cast<float>(height(48.0) + s.n(s.rng)));
+      s.rv.roi_points_part.emplace_back(static_cast<float>(x), static_cast<float>(y),
+                                        static_cast<float>(height(stub) + s.n(s.rng)));
+    }
+  c.after.regions.push_back(s.rv);
+  return c;
+}
+
+TEST(Compensation, AWornDiscShowsItsRadiusInTheStubItLeaves) {
+  // The stub's outer edge is where the real disc stopped: its width round the ring splits into
+  // the disc's shortfall (the same all round) and the offset across the axis (cos-shaped).
+  const auto recipe = disc_recipe();
+  const Vec3 offset(0.1, -0.08, 0.0);
+  const auto cut = ring_fin(offset, 0.5, 0.3, 0.03, 11);
+  const auto m = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after);
+  ASSERT_TRUE(m) << m.error().message;
+  ASSERT_EQ(m->tools.count("chamfer-disc"), 1u) << m->describe();
+  const double wear = m->tools.at("chamfer-disc").wear_mm;
+  // the samples lie within stub_edge_mm of the edge, nearer the wall: the radius is measured
+  // short by up to that much, never long (a disc planned smaller than it is cuts the wall)
+  EXPECT_LE(wear, 0.5 + 0.02);
+  EXPECT_GE(wear, 0.5 - 0.12);
+  EXPECT_NEAR(m->offset_mm.x(), 0.1, 0.03) << m->describe();
+  EXPECT_NEAR(m->offset_mm.y(), -0.08, 0.03) << m->describe();
+  ASSERT_EQ(m->regions.count("ring"), 1u);
+  EXPECT_NEAR(m->regions.at("ring").offset_mm.x(), 0.1, 0.03);
+  // planned with the disc worn 0.3 mm, the stub shows the 0.2 mm it wore beyond that
+  const auto again = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after, {{"chamfer-disc", 0.3}});
+  ASSERT_TRUE(again) << again.error().message;
+  ASSERT_EQ(again->tools.count("chamfer-disc"), 1u);
+  EXPECT_NEAR(again->tools.at("chamfer-disc").wear_mm, wear - 0.3, 0.03);
+}
+
+TEST(Compensation, AReGrindTakesTheWearItsCycleMeasured) {
+  // The disc was planned worn 0.1 mm; its stub says 0.4 mm more (+- 0.02): the re-grind plans it
+  // at least 0.1 + 0.4 - 2 x 0.02 worn. The ball's radius did not show: the cell's least stays.
+  fp::CutOffset measured;
+  measured.tools["chamfer-disc"] = fp::ToolWearMeasured{0.4, 0.02, 800};
+  const fp::ToolWearMm commanded{{"chamfer-disc", 0.1}, {"ball-12", 0.05}};
+  const fp::ToolWearMm cell_least{{"chamfer-disc", 0.1}, {"ball-12", 0.05}};
+  auto w = fp::regrind_tool_wear(cell_least, measured, commanded);
+  EXPECT_NEAR(w.at("chamfer-disc"), 0.46, 1e-12);
+  EXPECT_DOUBLE_EQ(w.at("ball-12"), 0.05);
+  // a measurement within its own scatter of nothing never takes the least below the cell's
+  measured.tools["chamfer-disc"] = fp::ToolWearMeasured{0.01, 0.02, 800};
+  w = fp::regrind_tool_wear(cell_least, measured, commanded);
+  EXPECT_DOUBLE_EQ(w.at("chamfer-disc"), 0.1);
+}
+
+TEST(Compensation, AFinsOwnEdgeIsNotAWheelsEdge) {
+  // The fin stands into the commanded disc where the disc never came: its own edge is not cut
+  // (the first scan ended there too) and says nothing of the disc's radius.
+  const auto recipe = disc_recipe();
+  const auto cut = ring_fin(Vec3::Zero(), 0.5, 0.3, 0.03, 12, false);
+  const auto m = fp::measure_cut_offset(recipe, cut.before, {cut.commanded}, cut.after);
+  EXPECT_FALSE(m) << m->describe();
+}
+
 TEST(Compensation, ABallsRadiusAgainstAGroovesBottomIsLeftToTheOffset) {
   // a groove's bottom looks up: the ball's radius and the offset's height move it alike, and
   // the fit does not split them by guesswork

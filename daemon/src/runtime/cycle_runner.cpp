@@ -468,6 +468,10 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
       po.cell_bias_mm = rc.bias_mm;
       po.placement_bound_mm2 = rc.placement.bound_mm2;
       po.region_placement = rc.regions;
+      po.tool_wear_mm = process::regrind_tool_wear(po.tool_wear_mm, c.cut_offset->value(), c.tool_wear_mm);
+      for (const auto& [name, w] : po.tool_wear_mm)
+        if (const auto before = c.tool_wear_mm.find(name); before != c.tool_wear_mm.end() && w > before->second + 1e-9)
+          log->info("cycle {}: wheel '{}' is re-ground as worn at least {:.3f} mm (its cut showed it)", c.summary.id, name, w);
       for (const auto& [name, r] : rc.regions)
         log->info("cycle {}: region '{}' is re-ground with its own offset ({:.3f}, {:.3f}, {:.3f}) mm", c.summary.id, name,
                   r.bias_mm.x(), r.bias_mm.y(), r.bias_mm.z());

@@ -84,6 +84,15 @@ struct CutOffsetSettings {
   double removed_min_mm = 0.15;
   double column_mm = 0.6;
   std::size_t min_points = 50;  ///< a direction needs this many points' weight to be observed
+  /// The edge a wheel's side left in a surface it cut part of (a fin's stub round a flange): how
+  /// far inside the commanded tool it is looked for (the most a wheel may be worn beyond what it
+  /// was commanded with; outside it, band_mm), the bins of the nearest pose's tip it is found in, the band above the
+  /// edge whose points are its samples (they lie up to this much nearer the wall: the radius is
+  /// measured that much short, never long) and the re-scan's columns that tell it is cut away.
+  double stub_band_mm = 3.0;
+  double stub_bin_mm = 4.0;
+  double stub_edge_mm = 0.1;
+  double stub_column_mm = 0.3;
 };
 
 /// The cell's offset measured on the surfaces the tool cut in this cycle. `before`: the cycle's
@@ -236,6 +245,15 @@ struct RegrindCompensation {
 };
 RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
                                          const CutOffset& measured, const config::CompensationSection& settings);
+
+/// The wheels' least wear for a re-grind in the cycle whose first grind measured `measured`, its
+/// wheels planned worn `commanded`: a wheel whose cut showed its radius is at least commanded +
+/// what it measured less two sigma (the measurement errs short: a fin's stub is measured from the
+/// points just inside its edge), the others as the cell has them (`cell_least`,
+/// CellBias::tool_wear_mm()). The cell's least waits for three measurements to fit the wheel's
+/// rate; planned with it, a re-grind leaves the stub the first grind left. Test
+/// Compensation.AReGrindTakesTheWearItsCycleMeasured.
+ToolWearMm regrind_tool_wear(const ToolWearMm& cell_least, const CutOffset& measured, const ToolWearMm& commanded);
 
 /// The state file: JSON {"bias_mm": [x, y, z], "updates": n, "calibration_id", "tools_id"}.
 /// load_cell_bias() returns a zero bias when the file does not exist; a file it cannot read is
