@@ -58,9 +58,10 @@ struct CutOffset {
   Vec3 std_mm = Vec3::Zero();     ///< 1-sigma of offset_mm per base axis (0 where unobserved)
   std::size_t points = 0;         ///< re-scan points on cut surfaces that carry the fit
   double rms_mm = 0.0;            ///< their residual to the fitted tool surface
-  /// The wheels whose radius the cut showed apart from the offset (by tool name): fitted with it,
-  /// sd_i = n_i . b - c_i w_tool, c_i the share of the surface's normal across the tool's axis
-  /// (1 on a ball and a cylinder's side, 0 on its flat end).
+  /// The wheels whose radius the cut showed apart from the offset (by tool name): each fitted on
+  /// its own cut surfaces and stub edges with an offset of its own, sd_i = n_i . b_t - c_i w_t,
+  /// c_i the share of the surface's normal across the tool's axis (1 on a ball and a cylinder's
+  /// side, 0 on its flat end). offset_mm and regions are fitted with the wheels as measured.
   std::map<std::string, ToolWearMeasured> tools;
   /// Each region whose own cut surfaces fix a direction (min_points' weight), by region name.
   std::map<std::string, RegionCutOffset> regions;
