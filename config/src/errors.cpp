@@ -27,6 +27,7 @@ void read_errors(TableReader& root, ErrorBudget& e) {
     }
     t->number("wheel_wear_mm_per_cm3", e.wheel_wear_mm_per_cm3, {0.0, 1.0});
     t->number("wheel_wear_spread_pct", e.wheel_wear_spread_pct, {0.0, 100.0});
+    t->number("wheel_worn_start_mm", e.wheel_worn_start_mm, {0.0, 5.0});
     if (e.depth_correlated_mm > 0.0 && !(e.depth_correlation_px > 0.0))
       t->error("depth_correlation_px", "must be above 0 when depth_correlated_mm is set");
     if (e.interreflection_mm > 0.0)

@@ -197,12 +197,13 @@ struct Sample {
 };
 
 /// The edge a wheel's side left in a surface it cut part of: re-scan points (base frame) of a
-/// surface that still stands as the first scan saw it, inside the commanded tool, where the same
+/// surface that still stands as the first scan saw it, beside a wheel's side, where the same
 /// surface went on further into the tool in the first scan and is gone in the re-scan. There the
 /// real wheel stopped: such a point lies on the real tool's surface, sd = n . b - w like a cut
-/// surface's (fettle/process/compensation.hpp), inside the commanded tool or outside it. A ring's fin ground by a disc's side leaves such
-/// a stub round the flange: the wall it is measured against stands edge-on to the camera and
-/// shows nothing, the stub's top does (docs/compensation.md, "A wheel's radius from its stub").
+/// surface's (fettle/process/compensation.hpp), inside the commanded tool or outside it. A
+/// ring's fin ground by a disc's side leaves such a stub round the flange: the wall it is
+/// measured against stands edge-on to the camera and shows nothing, the stub's top does
+/// (docs/compensation.md, "A wheel's radius from its stub").
 /// Per bin of stub_bin_mm over the nearest pose's tip, the stub's outer edge is its deepest
 /// point into the tool (a robust one: the fifth deepest in a hundred); the points within
 /// stub_edge_mm of it are the samples. Points nearer the wall than that, and the tool's flat end
@@ -237,7 +238,6 @@ void add_stub_edges(const VerificationResult& after, const ToolIndex& tools, con
           (now && *now > q.z() - settings.removed_min_mm))
         continue;
       by_bin[{s.region, bins.key(tools.pose(pose).a)}].push_back(s);
-
     }
   }
   for (auto& [bin, edge] : by_bin) {
@@ -418,8 +418,8 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
   out.std_mm = (P * Eigen::Matrix3d(fit.cov) * P).diagonal().cwiseMax(0.0).cwiseSqrt();
   out.points = fit.used;
   out.rms_mm = fit.sigma;
-  // Each region's own offset: b alone on its samples (the wheels as commanded, as above),
-  // started from the whole cut's offset.
+  // Each region's own offset: b alone on its samples (corrected for the wheels' measured radii,
+  // as above), started from the whole cut's offset.
   for (std::size_t r = 0; r < after.regions.size(); ++r) {
     std::vector<Sample> own;
     for (const auto& s : samples)

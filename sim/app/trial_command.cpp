@@ -436,6 +436,8 @@ int trial(const Args& a) {
   const double max_cut_mm = errors ? kMaxCutUnderErrorsMm : kMaxCutMm;
   std::vector<double> plan_ms;
   std::map<std::string, double> worn_mm;  // --errors: each tool's radius lost to wear so far
+  if (errors)
+    for (const auto& t : recipe.tools) worn_mm[t.name] = errors->budget.wheel_worn_start_mm;
   json seeds_json = json::array();
   const std::size_t count = last - first + 1;
   // The cell learns its bias from each casting's verification (fettle/process/compensation.hpp),

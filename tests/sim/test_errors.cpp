@@ -67,6 +67,8 @@ TEST(ErrorBudget, AMisspelledKeyAnOutOfRangeValueOrAnUnmodelledErrorIsRefusedWit
   EXPECT_NE(refusal("[errors]\ndepth_correlated_mm = 0.03\n").find("depth_correlation_px"), std::string::npos);
   EXPECT_NE(refusal("hand_eye_mm = 0.1\n").find("errors"), std::string::npos) << "the [errors] table is required";
   EXPECT_NE(refusal("[errors]\nhand_eye_pivot = \"robot\"\n").find("fixture"), std::string::npos) << "says the choices";
+  EXPECT_NE(refusal("[errors]\nwheel_worn_start_mm = 6.0\n").find("wheel_worn_start_mm"), std::string::npos);
+  EXPECT_TRUE(refusal("[errors]\nwheel_worn_start_mm = 0.6\n").empty());
   EXPECT_TRUE(refusal("[errors]\n").empty()) << "every key is optional";
 }
 

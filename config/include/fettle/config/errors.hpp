@@ -34,6 +34,10 @@ struct ErrorBudget {
   /// sign, drawn once per cell and tool): one wheel is not another, and a rate the recipe states
   /// is its maker's, not this wheel's.
   double wheel_wear_spread_pct = 0.0;
+  /// Every wheel is this much smaller than its nominal radius when the run starts (a cell whose
+  /// wheels ground castings before; the cell is not told): the worn-wheel case without grinding
+  /// dozens of castings first. A wheel changed during the run is new (0).
+  double wheel_worn_start_mm = 0.0;
   std::filesystem::path source;         ///< the file read (absolute)
 };
 
