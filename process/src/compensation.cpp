@@ -229,13 +229,13 @@ void add_stub_edges(const VerificationResult& after, const ToolIndex& tools, con
           s.sd < -settings.stub_band_mm || s.radial < 0.5)
         continue;
       // one step further into the tool across its axis: the first scan's surface went on at this
-      // height, the re-scan's is lower (cut away)
+      // height, the re-scan's is gone or stub_drop_mm lower (cut through, not a face's shallow cut)
       Vec3 in(-s.n.x(), -s.n.y(), 0.0);
       if (in.norm() < 0.5) continue;
       const Vec3 beyond = q + settings.column_mm * in.normalized();
       const auto was = first_scan.top(beyond), now = rescan.top(beyond);
       if (!was || std::abs(*was - q.z()) >= 2.0 * settings.removed_min_mm ||
-          (now && *now > q.z() - settings.removed_min_mm))
+          (now && *now > q.z() - settings.stub_drop_mm))
         continue;
       by_bin[{s.region, bins.key(tools.pose(pose).a)}].push_back(s);
     }

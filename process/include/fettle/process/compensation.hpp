@@ -94,6 +94,12 @@ struct CutOffsetSettings {
   double stub_bin_mm = 4.0;
   double stub_edge_mm = 0.1;
   double stub_column_mm = 0.3;
+  /// The surface beyond a stub's edge is gone or at least this much lower in the re-scan: the
+  /// wheel's side cut through the material (a ring's fin stands 15 mm over the body). The rim of a
+  /// face cut a few tenths deep is no such edge: its step is within a few sigma of the scanner's
+  /// noise and places the rim a tenth of a millimetre either way (a cup wheel read 0.12 mm larger
+  /// than it is; test Trial.TheCellLearnsAPathBiasFromItsVerificationsAndTheGougesShrink).
+  double stub_drop_mm = 1.0;
 };
 
 /// The cell's offset measured on the surfaces the tool cut in this cycle. `before`: the cycle's
