@@ -119,17 +119,12 @@ class HeightColumns {
   void for_each(Fn&& fn) const {
     for (const auto& [k, t] : top_) fn(t.at);
   }
-  /// How far the first scan's surface stood above q (nullopt: the first scan saw nothing there).
+  /// How far the surface seen over q's column (its highest point) stands above q (nullopt:
+  /// nothing seen there).
   [[nodiscard]] std::optional<double> removed_above(const Vec3& q) const {
     const auto it = top_.find(key(q.x(), q.y()));
     if (it == top_.end()) return std::nullopt;
     return static_cast<double>(it->second.z) - q.z();
-  }
-  /// The highest point's height over q's column (nullopt: none seen there).
-  [[nodiscard]] std::optional<double> top(const Vec3& q) const {
-    const auto it = top_.find(key(q.x(), q.y()));
-    if (it == top_.end()) return std::nullopt;
-    return static_cast<double>(it->second.z);
   }
   /// How far the lowest surface the first scan saw in q's column stood above q: a surface at
   /// q's height in the column (beside a fin, round a riser's foot) may be where the tool only
@@ -220,9 +215,10 @@ void add_stub_edges(const VerificationResult& after, const ToolIndex& tools, con
     for (const auto& p : r.roi_points_part) {
       const Vec3 q = T * p.cast<double>();
       // a surface the first scan saw at this height: not removed
-      const auto top = first_scan.top(q);
-      if (!top || std::abs(*top - q.z()) >= settings.removed_min_mm) continue;
+      const auto removed = first_scan.removed_above(q);
+      if (!removed || std::abs(*removed) >= settings.removed_min_mm) continue;
       Sample s{};
+      s.edge = true;
       s.region = static_cast<std::size_t>(&r - after.regions.data());
       std::size_t pose = 0;
       if (!tools.nearest(q, s.sd, s.n, s.radial, s.tool, &pose) || s.sd > settings.band_mm ||
@@ -232,11 +228,9 @@ void add_stub_edges(const VerificationResult& after, const ToolIndex& tools, con
       // height, the re-scan's is gone or stub_drop_mm lower (cut through, not a face's shallow cut)
       Vec3 in(-s.n.x(), -s.n.y(), 0.0);
       if (in.norm() < 0.5) continue;
-      const Vec3 beyond = q + settings.column_mm * in.normalized();
-      const auto was = first_scan.top(beyond), now = rescan.top(beyond);
-      if (!was || std::abs(*was - q.z()) >= 2.0 * settings.removed_min_mm ||
-          (now && *now > q.z() - settings.stub_drop_mm))
-        continue;
+      const Vec3 beyond = q + settings.column_mm * in.normalized();  // at q's height
+      const auto was = first_scan.removed_above(beyond), now = rescan.removed_above(beyond);
+      if (!was || std::abs(*was) >= 2.0 * settings.removed_min_mm || (now && *now > -settings.stub_drop_mm)) continue;
       by_bin[{s.region, bins.key(tools.pose(pose).a)}].push_back(s);
     }
   }
@@ -245,10 +239,7 @@ void add_stub_edges(const VerificationResult& after, const ToolIndex& tools, con
     std::sort(edge.begin(), edge.end(), [](const Sample& a, const Sample& b) { return a.sd < b.sd; });
     const double deepest = edge[edge.size() / 20].sd;
     for (const auto& s : edge)
-      if (s.sd >= deepest && s.sd <= deepest + settings.stub_edge_mm) {
-        samples.push_back(s);
-        samples.back().edge = true;
-      }
+      if (s.sd >= deepest && s.sd <= deepest + settings.stub_edge_mm) samples.push_back(s);
   }
 }
 
@@ -364,7 +355,7 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
   // radius.
   const auto& recipe_tools = loaded.recipe.tools;
   const std::vector<double> gates{settings.band_mm, 0.5 * settings.band_mm, 0.3, 0.2, 0.15, 0.15};
-  std::vector<double> wear_of(recipe_tools.size(), 0.0);
+  std::vector<std::optional<double>> wear_of(recipe_tools.size());  // measured radius loss per tool
   CutOffset out;
   for (std::size_t t = 0; t < recipe_tools.size(); ++t) {
     std::vector<Sample> own;
@@ -399,10 +390,8 @@ Result<CutOffset> measure_cut_offset(const LoadedRecipe& loaded, const vision::I
   // The whole cut's offset: b on every sample, each as if its wheel were as commanded. A stub's
   // edge whose wheel's radius is not measured is left out: it stands that radius inside the
   // commanded tool, and where the edges cover part of the ring only, the offset would take it.
-  std::erase_if(samples, [&](const Sample& s) {
-    return s.edge && out.tools.count(recipe_tools[s.tool].name) == 0;
-  });
-  for (auto& s : samples) s.sd += s.radial * wear_of[s.tool];
+  std::erase_if(samples, [&](const Sample& s) { return s.edge && !wear_of[s.tool]; });
+  for (auto& s : samples) s.sd += s.radial * wear_of[s.tool].value_or(0.0);
   const RobustFit fit = robust_fit(
       samples, [](const Sample& s) { return Eigen::VectorXd(s.n); }, 3, Eigen::VectorXd::Zero(3), gates,
       recipe_tools.size(), settings.min_points);

@@ -13,8 +13,10 @@ using namespace fettle;  // NOLINT
 
 namespace {
 
+fs::path scratch_path() { return fs::temp_directory_path() / ("fettle-calfile-" + std::to_string(::getpid())); }
+
 fs::path temp_dir() {
-  const auto d = fs::temp_directory_path() / ("fettle-calfile-" + std::to_string(::getpid()));
+  const auto d = scratch_path();
   fs::create_directories(d);
   return d;
 }
@@ -26,7 +28,7 @@ struct RemoveTempDir {
   RemoveTempDir& operator=(const RemoveTempDir&) = delete;
   ~RemoveTempDir() {
     std::error_code ec;
-    fs::remove_all(fs::temp_directory_path() / ("fettle-calfile-" + std::to_string(::getpid())), ec);
+    fs::remove_all(scratch_path(), ec);
   }
 } const remove_temp_dir;
 

@@ -87,9 +87,10 @@ struct CutOffsetSettings {
   std::size_t min_points = 50;  ///< a direction needs this many points' weight to be observed
   /// The edge a wheel's side left in a surface it cut part of (a fin's stub round a flange): how
   /// far inside the commanded tool it is looked for (the most a wheel may be worn beyond what it
-  /// was commanded with; outside it, band_mm), the bins of the nearest pose's tip it is found in, the band above the
-  /// edge whose points are its samples (they lie up to this much nearer the wall: the radius is
-  /// measured that much short, never long) and the re-scan's columns that tell it is cut away.
+  /// was commanded with; outside it, band_mm), the bins of the nearest pose's tip it is found
+  /// in, the band above the edge whose points are its samples (they lie up to this much nearer
+  /// the wall: the radius is measured that much short, never long) and the re-scan's columns
+  /// that tell it is cut away.
   double stub_band_mm = 3.0;
   double stub_bin_mm = 4.0;
   double stub_edge_mm = 0.1;
