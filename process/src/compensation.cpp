@@ -607,16 +607,39 @@ void CellBias::add_wear_measurements(const CutOffset& measured, const ToolWearMm
   }
 }
 
-std::vector<std::string> CellBias::worn_out(const config::PartRecipe& recipe,
-                                            const std::map<std::string, double>& next_cm3) const {
-  std::vector<std::string> out;
+std::optional<double> wear_slack_mm(const config::PartRecipe& recipe, const config::Tool& tool) {
+  constexpr double kVerificationLevelMm = 0.3;  // VerificationSettings::ok_max_share_over_0_3_pct's level
+  std::optional<double> out;
+  for (const auto& r : recipe.regions) {
+    if (r.tool != tool.name || tool.shape == config::ToolShape::cone) continue;
+    // a cylinder's flat end grinds a riser's face: its radius leaves nothing there
+    if (r.type == config::RegionType::riser && tool.shape == config::ToolShape::cylinder) continue;
+    const double slack = kVerificationLevelMm - r.allowance_mm;
+    if (!out || slack < *out) out = slack;
+  }
+  return out;
+}
+
+std::vector<WornWheel> CellBias::worn_out(const config::PartRecipe& recipe,
+                                          const std::map<std::string, double>& next_cm3) const {
+  std::vector<WornWheel> out;
   for (const auto& t : recipe.tools) {
-    if (t.max_wear_mm <= 0.0) continue;
     const auto it = tools.find(t.name);
     if (it == tools.end()) continue;
     const auto nx = next_cm3.find(t.name);
-    const double next = nx == next_cm3.end() ? 0.0 : nx->second;
-    if (it->second.wear(t, next).most_mm > t.max_wear_mm) out.push_back(t.name);
+    const auto w = it->second.wear(t, nx == next_cm3.end() ? 0.0 : nx->second);
+    char why[200];
+    if (t.max_wear_mm > 0.0 && w.most_mm > t.max_wear_mm) {
+      std::snprintf(why, sizeof why, "worn %.2f mm (up to %.2f; its life: %.2f mm)", w.expected_mm, w.most_mm,
+                    t.max_wear_mm);
+      out.push_back({t.name, why});
+    } else if (const auto slack = wear_slack_mm(recipe, t); slack && w.most_mm - w.least_mm > *slack) {
+      std::snprintf(why, sizeof why,
+                    "worn %.2f-%.2f mm: known less well than its regions' finish needs (%.2f mm; until its cut "
+                    "shows its radius, only a new wheel's is known)",
+                    w.least_mm, w.most_mm, *slack);
+      out.push_back({t.name, why});
+    }
   }
   return out;
 }

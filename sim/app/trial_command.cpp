@@ -672,9 +672,11 @@ int trial(const Args& a) {
     if (learning) {
       const auto predicted = cell_bias.tool_wear(recipe);
       json changes = json::array();
-      for (const auto& name : cell_bias.worn_out(recipe, removed)) {
+      for (const auto& change : cell_bias.worn_out(recipe, removed)) {
+        const auto& name = change.tool;
         const auto& w = predicted.at(name);
         changes.push_back({{"tool", name},
+                           {"why", change.why},
                            {"predicted_wear_mm", {{"least", w.least_mm}, {"expected", w.expected_mm}, {"most", w.most_mm}}},
                            {"true_wear_mm", worn_mm[name]}});
         std::fprintf(stderr, ", new wheel %s (worn %.2f mm, predicted %.2f, at most %.2f)", name.c_str(), worn_mm[name],

@@ -49,8 +49,8 @@ const std::vector<FaultInfo>& fault_table() {
       {spindle_unavailable, "spindle.unavailable", hold, "the spindle drive cannot be reached or configured",
        "check the CAN bus, termination, node id and [spindle] transport"},
       {tool_worn, "tool.worn", hold,
-       "a wheel would wear past its [[tools]] max_wear_mm on the next casting (the cell's prediction from the iron "
-       "it removed)",
+       "a wheel would wear past its [[tools]] max_wear_mm on the next casting, or its wear would be known less well "
+       "than its regions' finish needs (the cell's prediction from the iron it removed)",
        "fit a new wheel, run `fettle tool changed NAME` in maintenance mode, then Reset, Start"},
       {empty_fixture, "part.empty_fixture", hold, "no part was found in the fixture",
        "place a part; the PLC must request a cycle only with a part clamped"},

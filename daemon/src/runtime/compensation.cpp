@@ -90,16 +90,10 @@ std::optional<Fault> Runtime::Impl::worn_wheels(const Cycle& c) const {
   const auto last = last_removed_cm3.find(c.recipe_id);
   const auto worn = cell_bias.worn_out(recipe, last == last_removed_cm3.end() ? std::map<std::string, double>{} : last->second);
   if (worn.empty()) return std::nullopt;
-  const auto wear = cell_bias.tool_wear(recipe);
   std::string what;
-  for (const auto& name : worn) {
-    const auto t = std::find_if(recipe.tools.begin(), recipe.tools.end(), [&](const config::Tool& x) { return x.name == name; });
-    what += fmt::format("{}wheel '{}' is worn {:.2f} mm (up to {:.2f}; its life: {:.2f} mm)", what.empty() ? "" : ", ",
-                        name, wear.at(name).expected_mm, wear.at(name).most_mm,
-                        t == recipe.tools.end() ? 0.0 : t->max_wear_mm);
-  }
+  for (const auto& w : worn) what += fmt::format("{}wheel '{}' is {}", what.empty() ? "" : ", ", w.tool, w.why);
   return Fault{FaultCode::tool_worn,
-               what + " and may pass it on this casting: fit a new wheel and run `fettle tool changed " + worn.front() +
+               what + ": fit a new wheel and run `fettle tool changed " + worn.front().tool +
                    "` in maintenance mode",
                "tools"};
 }

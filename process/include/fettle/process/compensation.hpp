@@ -17,6 +17,7 @@
 #include <cstddef>
 #include <filesystem>
 #include <map>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -141,6 +142,21 @@ struct WearRange {
   double most_mm = 0.0;
 };
 
+/// How much of a wheel's wear the cell may leave unknown: the verification's first level
+/// (0.3 mm: VerificationSettings::ok_max_share_over_0_3_pct) less the largest allowance of the
+/// regions whose finished surface the wheel's radius shapes (a cylinder's side, a ball). Planned
+/// at its least wear and worn by its most, the wheel leaves a stub that much wider than the
+/// allowance: past 0.3 mm off the template, the verification reads it REGRIND, and the re-grind,
+/// planned with the same wheel, leaves it again. nullopt: its radius shapes no region's surface
+/// (a cup wheel's flat end on a riser). Test Compensation.AWheelWhoseWearIsNotKnownWellEnoughIsChanged.
+[[nodiscard]] std::optional<double> wear_slack_mm(const config::PartRecipe& recipe, const config::Tool& tool);
+
+/// A wheel the cell asks to change (CellBias::worn_out()).
+struct WornWheel {
+  std::string tool;
+  std::string why;  ///< e.g. "worn 2.10 mm (up to 2.73; its life: 3.00 mm)"
+};
+
 struct ToolWear {
   double removed_cm3 = 0.0;      ///< by this wheel since it was fitted
   double sum_wv = 0.0;           ///< measured wear x removed, summed over the measurements
@@ -204,10 +220,12 @@ struct CellBias {
   /// `commanded`) was worn commanded + measured after the removal counted so far: one more
   /// point of its rate's fit.
   void add_wear_measurements(const CutOffset& measured, const ToolWearMm& commanded);
-  /// The tools whose most wear after one more cycle like the last (`next_cm3` by tool name)
-  /// passes their max_wear_mm: "change the wheel" before the next cycle. Empty: none.
-  [[nodiscard]] std::vector<std::string> worn_out(const config::PartRecipe& recipe,
-                                                  const std::map<std::string, double>& next_cm3) const;
+  /// The wheels to change before the next cycle, with why: after one more cycle like the last
+  /// (`next_cm3` by tool name) the most a wheel may be worn passes its max_wear_mm, or the
+  /// wheel's wear is known less well than its regions leave to the verification
+  /// (wear_slack_mm()). Empty: none.
+  [[nodiscard]] std::vector<WornWheel> worn_out(const config::PartRecipe& recipe,
+                                                const std::map<std::string, double>& next_cm3) const;
   /// A new wheel of the tool's kind is fitted: its removal starts at 0, the rate is kept, and
   /// the regions it grinds forget their own offsets (which hold the old wheel's wear: kept, the
   /// new, larger wheel would cut that much deeper).
