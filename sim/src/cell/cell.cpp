@@ -81,8 +81,10 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
   std::thread supervisor;
   std::atomic<bool> auto_start{true};
   std::atomic<std::size_t> results_seen{0};
+  std::atomic<int> finished{0};  ///< fed castings whose cycle ended with a result other than FAULT
   int fed = 0;
   bool part_in_progress = false;
+  bool stays = false;  ///< the fed casting's cycle ended FAULT: it stays on the fixture, requested again
   Clock::time_point last_command_at{};
   std::mutex handler_mutex;
   CellEventHandler handler;
@@ -436,8 +438,14 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       std::this_thread::sleep_for(std::chrono::milliseconds(10));
       const auto snap = plc->snapshot();
       if (snap.results.size() > results_seen) {
-        for (std::size_t k = results_seen; k < snap.results.size(); ++k)
+        for (std::size_t k = results_seen; k < snap.results.size(); ++k) {
           event("result " + std::to_string(k + 1) + ": " + std::string(drivers::plc::name(snap.results[k])));
+          // A cycle that ended FAULT did not finish its casting (tool.worn stops one before the
+          // scan): it stays on the fixture, and the PLC requests it again once the operator has
+          // brought the cell back to Execute (Reset, Unhold).
+          if (part_in_progress && snap.results[k] == drivers::plc::CycleResult::fault) stays = true;
+          else if (part_in_progress) ++finished;
+        }
         results_seen = snap.results.size();
         part_in_progress = false;
       }
@@ -445,19 +453,26 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
       const auto state = snap.fettle.state;
       const auto now = Clock::now();
       if (auto_start && now - last_command_at > std::chrono::seconds(2)) {
-        const bool finished = options.castings > 0 && fed >= options.castings && !part_in_progress;
-        if ((state == packml::State::stopped || (state == packml::State::complete && !finished))) {
+        const bool all_done = options.castings > 0 && fed >= options.castings && !part_in_progress && !stays;
+        if ((state == packml::State::stopped || (state == packml::State::complete && !all_done))) {
           plc->send_command(packml::Command::reset);
           last_command_at = now;
           event("PLC: Reset");
-        } else if (state == packml::State::idle && !finished) {
+        } else if (state == packml::State::idle && !all_done) {
           plc->send_command(packml::Command::start);
           last_command_at = now;
           event("PLC: Start");
         }
       }
-      if (options.castings > 0 && fed < options.castings && !part_in_progress && state == packml::State::execute &&
-          snap.parts_requested == snap.cycles_accepted) {
+      if (options.castings > 0 && stays && !part_in_progress && state == packml::State::execute &&
+          !snap.fettle.fault_latched && snap.parts_requested == snap.cycles_accepted) {
+        stays = false;
+        plc->part_arrives(recipe_id);
+        part_in_progress = true;
+        event("cycle request " + std::to_string(fed) + " of " + std::to_string(options.castings) +
+              " again (the casting stayed on the fixture)");
+      } else if (options.castings > 0 && !stays && fed < options.castings && !part_in_progress &&
+                 state == packml::State::execute && snap.parts_requested == snap.cycles_accepted) {
         ++fed;
         load(options.first_seed + static_cast<std::uint64_t>(fed - 1));
         plc->part_arrives(recipe_id);
@@ -575,7 +590,7 @@ void CellSim::load_wrong(std::uint64_t seed) { impl_->load_wrong(seed); }
 void CellSim::request() { impl_->plc->part_arrives(impl_->recipe_id); }
 std::size_t CellSim::results() const { return impl_->results_seen; }
 bool CellSim::done() const {
-  return impl_->options.castings > 0 && impl_->results_seen >= static_cast<std::size_t>(impl_->options.castings);
+  return impl_->options.castings > 0 && impl_->finished >= impl_->options.castings;
 }
 void CellSim::set_auto_start(bool on) { impl_->auto_start = on; }
 Status CellSim::inject(const std::string& line) { return impl_->inject(line); }

@@ -8,7 +8,9 @@
 //   - the robot's executed path grinds that casting (tool per segment from the recipe's region
 //     ROIs), so a ground part re-scans ground;
 //   - castings are loaded one after the other (seeds first_seed, first_seed+1, ...) with a cycle
-//     request each; the next one once fettled reported a result.
+//     request each; the next one once fettled reported a result. A casting whose cycle ended
+//     FAULT stays on the fixture and is requested again once the cell is back in Execute with
+//     its fault cleared (the operator's Reset and Unhold: `plc reset`, `plc unhold`).
 // Fault injection: inject("plc drop"), inject("camera drop 3"), ... (see inject()).
 #include <cstdint>
 #include <functional>
@@ -80,7 +82,7 @@ class CellSim {
   void request();
   /// Results fettled reported so far.
   [[nodiscard]] std::size_t results() const;
-  /// True once every automatic casting got its result.
+  /// True once every automatic casting got a result other than FAULT.
   [[nodiscard]] bool done() const;
   void set_auto_start(bool on);
 
