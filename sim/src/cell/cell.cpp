@@ -464,20 +464,17 @@ struct CellSim::Impl : std::enable_shared_from_this<CellSim::Impl> {
           event("PLC: Start");
         }
       }
-      if (options.castings > 0 && stays && !part_in_progress && state == packml::State::execute &&
-          !snap.fettle.fault_latched && snap.parts_requested == snap.cycles_accepted) {
+      // the next casting, or again the one a FAULT left on the fixture once its fault is cleared
+      if (options.castings > 0 && !part_in_progress && state == packml::State::execute &&
+          snap.parts_requested == snap.cycles_accepted &&
+          (stays ? !snap.fettle.fault_latched : fed < options.castings)) {
+        const bool again = stays;
+        if (!again) load(options.first_seed + static_cast<std::uint64_t>(fed++));
         stays = false;
         plc->part_arrives(recipe_id);
         part_in_progress = true;
         event("cycle request " + std::to_string(fed) + " of " + std::to_string(options.castings) +
-              " again (the casting stayed on the fixture)");
-      } else if (options.castings > 0 && !stays && fed < options.castings && !part_in_progress &&
-                 state == packml::State::execute && snap.parts_requested == snap.cycles_accepted) {
-        ++fed;
-        load(options.first_seed + static_cast<std::uint64_t>(fed - 1));
-        plc->part_arrives(recipe_id);
-        part_in_progress = true;
-        event("cycle request " + std::to_string(fed) + " of " + std::to_string(options.castings));
+              (again ? " again (the casting stayed on the fixture)" : ""));
       }
     }
   }
