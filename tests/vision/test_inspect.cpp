@@ -384,6 +384,38 @@ TEST(Excess, TheLocalFaceFollowsAFormThePlaneCannot) {
         << "material off the bump at " << p.x() << ", " << p.y() << ", " << p.z();
 }
 
+// The face as the cell sees it: the casting's form (+-0.5 mm, a 100 mm wave) in the part's
+// located frame, whose registration error over 120 mm adds a tilt and a lift (0.003 mm/mm,
+// 0.25 mm here). The crest stands 0.8 mm over the template and about 0.5 mm over the region's
+// plane, and is still face. A face gated at the form deviation of the template (for the plane)
+// and of the plane (for the local fit) loses the crest's samples and reads 0.2-0.3 mm low
+// there, and a pass over it cuts that deep into the body (a straight flash's lead beyond its
+// ROI, `make accuracy`).
+TEST(Excess, AFaceFartherFromTheRegionsPlaneThanTheFormDeviationIsStillFollowed) {
+  const auto t = flat_template(60.0f);
+  const auto face = [](float x) {
+    return 0.25f + 0.5f * std::sin(2.0f * static_cast<float>(std::numbers::pi) * x / 100.0f) + 0.003f * x;
+  };
+  const auto on_bump = [](float x, float y) { return std::abs(x + 30) <= 3 && std::abs(y) <= 3; };
+  const auto scene = grid_scene(60, 20, 0.25f, 7, [&](float x, float y) { return face(x) + (on_bump(x, y) ? 1.5f : 0.0f); });
+  const auto ex = measure_excess(t, scene, against_own_face());
+  ASSERT_TRUE(ex.form.fitted);
+  double worst = 0.0, over_plane = 0.0, over_template = 0.0;
+  float wx = 0;
+  for (float x = -58; x <= 58; x += 0.5f)
+    for (float y = -18; y <= 18; y += 0.5f) {
+      if (std::abs(x + 30) <= 4 && std::abs(y) <= 4) continue;  // beside the bump
+      if (const double e = std::abs(ex.form.at(x, y) - face(x)); e > worst) worst = e, wx = x;
+      over_plane = std::max(over_plane, face(x) - ex.form.plane_at(x, y));
+      over_template = std::max(over_template, static_cast<double>(face(x)));
+    }
+  EXPECT_GT(over_template, 0.75) << "the crest stands farther over the template than the form deviation";
+  EXPECT_GT(over_plane, 0.45) << "and about as far over the region's plane";
+  EXPECT_LT(worst, 0.06) << "the local face at x = " << wx;
+  const std::size_t bump_points = 25 * 25;  // 6 x 6 mm at 0.25 mm
+  EXPECT_NEAR(static_cast<double>(ex.points.size()), static_cast<double>(bump_points), 0.1 * bump_points);
+}
+
 // A riser whose top is tilted so steeply (0.2 mm/mm) that it meets the face: on its low side
 // the material rises out of the face on a ramp, the first millimetres of which lie within the
 // casting's form deviation and look like face. A plane through a node's neighbourhood there

@@ -31,11 +31,11 @@ struct ExcessSettings {
 
 /// The casting's own surface against the template in one region (part frame, mm along the
 /// template's face normal), from the scan points on the template's upward faces:
-/// - the plane at_origin_mm + per_mm_x x + per_mm_y y, a robust fit to the offsets within the
-///   form deviation of the template: it carries the tilt a best fit to a deformed body takes;
+/// - the plane at_origin_mm + per_mm_x x + per_mm_y y, a robust fit to the offsets within twice
+///   the form deviation of the template: it carries the tilt a best fit to a deformed body takes;
 /// - where the scan saw the face, the local offset: at nodes `local_pitch_mm` apart, a plane
-///   through the offsets within `kLocalRadiusMm` (x-y) that lie within the form deviation of
-///   the plane above, trimmed hard on its upper side (what stands on a face, a fin's root or a
+///   through the offsets within `kLocalRadiusMm` (x-y) that lie within twice the form deviation
+///   of the plane above, trimmed hard on its upper side (what stands on a face, a fin's root or a
 ///   riser's foot, is above it) and loosely below; without the samples within `kFootMm` of
 ///   what stands out of the face (refitted while that shows more), so a riser whose tilted top
 ///   meets the face on a ramp of material lower than the form deviation does not lift it;
@@ -43,7 +43,10 @@ struct ExcessSettings {
 ///   faces around it where they surround it, else harmonic from the nodes around;
 /// - beyond the nodes by more than `kLocalRadiusMm` (off the region), the plane.
 /// One plane does not follow sand-cast iron's form along a 140 mm flash; the local face does
-/// (test Excess.TheLocalFaceFollowsAFormThePlaneCannot).
+/// (test Excess.TheLocalFaceFollowsAFormThePlaneCannot). Twice the form deviation: a face within
+/// it of the nominal stands up to twice off a plane through it, and in the part's located frame
+/// the registration's tilt and lift add to it (test
+/// Excess.AFaceFartherFromTheRegionsPlaneThanTheFormDeviationIsStillFollowed).
 struct FormOffset {
   /// Sand-cast form has wavelengths of 90 mm and more (the simulator's 90-200 mm): over 10 mm a
   /// plane follows it within 0.03 mm, and a fin's or a riser's foot is a minority of the points.
