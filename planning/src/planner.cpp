@@ -546,6 +546,22 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
         best = k;
     return best;
   };
+  // The layers follow the casting's face (the template moved onto it) under each raster point,
+  // not its height under the centroid alone: under a riser 40 mm wide a sand-cast face curves by
+  // up to 0.4 mm, and a flat last layer left that much over its low side (test
+  // RiserPlan.TheLastLayerFollowsTheCastingsFaceUnderTheRiser). A face farther from the
+  // centroid's than twice the form deviation is another feature (a wall's top, the fixture):
+  // there the layer stays flat and back_off lifts it where it must.
+  const double follow = 2.0 * std::max(0.0, in.form_deviation_mm);
+  std::vector<double> face_dz(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), 0.0);
+  if (follow > 0.0)
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c) {
+        const double a = std::min(amax, amin + c * spacing), b = std::min(bmax, bmin + r * step);
+        const double top = follow + 1.0;
+        const auto d = find_level(in.template_sdf, frame->base + a * e1 + b * e2 + top * up, -up, 0.0, 2.0 * top, 0.25);
+        if (d && std::abs(top - *d) <= follow) face_dz[static_cast<std::size_t>(r * cols + c)] = top - *d;
+      }
   int segment = 0;
   for (double level : plan.layer_levels_mm) {
     // The bounding box's corners can reach over a neighbouring feature the tool cannot pass
@@ -560,7 +576,8 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
       for (int c = 0; c < cols; ++c) {
         const int cc = (r % 2 == 0) ? c : cols - 1 - c;  // boustrophedon raster
         const double a = std::min(amax, amin + cc * spacing);
-        Transform T = frame_from(frame->base + a * e1 + b * e2 + level * up, up, (r % 2 == 0) ? e1 : Vec3(-e1));
+        const double dz = face_dz[static_cast<std::size_t>(r * cols + cc)];
+        Transform T = frame_from(frame->base + a * e1 + b * e2 + (level + dz) * up, up, (r % 2 == 0) ? e1 : Vec3(-e1));
         if (!back_off(tool, T, in.template_sdf, up, region.allowance_mm, settings.max_backoff_mm)) {
           const auto k = material_under(a, b);
           if (!k || heights[*k] <= std::max(settings.leave_unreachable_mm, in.form_deviation_mm)) {
@@ -900,10 +917,12 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
 namespace {
 
 /// The casting's own face against the template (RegionInput::form_offset_mm, which the caller
-/// checks is set): under it by no more than the stated form deviation, an offset lower than
-/// that not being the casting's form.
+/// checks is set): under it by no more than twice the stated form deviation, an offset lower
+/// than that not being the casting's face as the cell sees it (the vision's face samples end
+/// there: the form deviation, and as much again for the tilt and lift of the part's located
+/// pose, vision::FormOffset).
 std::function<double(const Vec3&)> face_offset(const RegionInput& in) {
-  return [offset = in.form_offset_mm, lowest = -std::max(0.0, in.form_deviation_mm)](const Vec3& p) {
+  return [offset = in.form_offset_mm, lowest = -2.0 * std::max(0.0, in.form_deviation_mm)](const Vec3& p) {
     return std::max(lowest, offset(p));
   };
 }
