@@ -187,8 +187,11 @@ double HeightField::distance(const Vec3& p, double max_search_mm) const {
       const double top = at(i, j);
       const double dx = std::max(0.0, std::abs(cx(i) - p.x()) - 0.5 * pitch);
       if (inside) {
-        // below the surface: the way out is up, or sideways past a column lower than p
-        if (top < p.z()) best = std::min(best, std::sqrt(dx * dx + dy * dy));
+        // below the surface: the way out is up through its own column's top, up through a
+        // neighbour's lower top (a point just inside a step's foot: the floor beside the wall
+        // is 0.1 mm away, its own column's top 10 mm), or sideways past a column lower than p
+        const double up = std::max(0.0, top - p.z());
+        best = std::min(best, std::sqrt(dx * dx + dy * dy + up * up));
         continue;
       }
       if (top <= kNoPart) continue;

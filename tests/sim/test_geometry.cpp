@@ -116,6 +116,29 @@ TEST(SimGeometry, ThePerfectlyFettledCastingIsOnItsOwnBodyNotOnTheGolden) {
   EXPECT_GT(worst_golden, 0.3) << "the form deviation is there";
 }
 
+// A scan point just inside the foot of a step (the pad's 10 mm wall over the plate, 0.05 mm into
+// the wall's column and 0.1 mm under the plate's top) is 0.11 mm from the surface, not the 10 mm
+// up to its own column's top: the evaluation counted such points as 10 mm off the casting.
+TEST(SimGeometry, APointJustInsideAStepsFootIsNearTheFloorBesideIt) {
+  const auto recipe = sim_test::pump_body();
+  const auto c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const double y = 48.0;
+  double edge = std::nan("");  // the riser pad's wall: the pad at x < edge, the plate beyond
+  for (double x = -60.0; x <= -50.0; x += 0.01)
+    if (c.golden_top_z_mm(x - 0.01, y) - c.golden_top_z_mm(x, y) > 5.0) {
+      edge = x - 0.005;
+      break;
+    }
+  ASSERT_FALSE(std::isnan(edge)) << "the riser pad's wall at y = 48";
+  const double top = c.golden_top_z_mm(edge - 1.0, y), floor = c.golden_top_z_mm(edge + 1.0, y);
+  ASSERT_GT(top - floor, 5.0);
+  const fettle::Vec3 foot(edge - 0.05, y, floor - 0.1);
+  EXPECT_NEAR(c.distance_to_body_mm(foot), std::hypot(0.05, 0.1), 0.06);
+  EXPECT_NEAR(c.distance_to_surface_mm(foot), std::hypot(0.05, 0.1), 0.06);
+  // deeper in, half way up the wall and 3 mm into the pad: the wall is nearest
+  EXPECT_NEAR(c.distance_to_body_mm(fettle::Vec3(edge - 3.0, y, 0.5 * (floor + top))), 3.0, 0.06);
+}
+
 // The body of a casting differs from the golden one by its smooth form deviation: within
 // +-form_deviation_mm everywhere, and really there (over half the amplitude somewhere); none when
 // the recipe sets 0.
