@@ -38,6 +38,11 @@ constexpr double kMaxFaceSlopeRad = 10.0 * std::numbers::pi / 180.0;
 /// wheel worn a little more than the cell predicts leave no ridge between two rows.
 constexpr double kMaxStepoverShare = 0.8;
 
+/// How far the casting's face may stand off the template as the cell sees it: twice the stated
+/// form deviation (the form, and as much again for the tilt and lift of the part's located pose;
+/// vision::FormOffset takes its face samples from the same band).
+double face_band_mm(const RegionInput& in) { return 2.0 * std::max(0.0, in.form_deviation_mm); }
+
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};
 }
@@ -552,13 +557,13 @@ Result<RegionPlan> plan_riser(const RegionInput& in, const PlannerSettings& sett
   // RiserPlan.TheLastLayerFollowsTheCastingsFaceUnderTheRiser). A face farther from the
   // centroid's than twice the form deviation is another feature (a wall's top, the fixture):
   // there the layer stays flat and back_off lifts it where it must.
-  const double follow = 2.0 * std::max(0.0, in.form_deviation_mm);
+  const double follow = face_band_mm(in);
   std::vector<double> face_dz(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), 0.0);
   if (follow > 0.0)
     for (int r = 0; r < rows; ++r)
       for (int c = 0; c < cols; ++c) {
         const double a = std::min(amax, amin + c * spacing), b = std::min(bmax, bmin + r * step);
-        const double top = follow + 1.0;
+        const double top = follow + 1.0;  // the search starts this far over the centroid's face
         const auto d = find_level(in.template_sdf, frame->base + a * e1 + b * e2 + top * up, -up, 0.0, 2.0 * top, 0.25);
         if (d && std::abs(top - *d) <= follow) face_dz[static_cast<std::size_t>(r * cols + c)] = top - *d;
       }
@@ -917,12 +922,10 @@ Transform flange_pose(const Transform& T_base_tool, const config::Tool& tool) {
 namespace {
 
 /// The casting's own face against the template (RegionInput::form_offset_mm, which the caller
-/// checks is set): under it by no more than twice the stated form deviation, an offset lower
-/// than that not being the casting's face as the cell sees it (the vision's face samples end
-/// there: the form deviation, and as much again for the tilt and lift of the part's located
-/// pose, vision::FormOffset).
+/// checks is set): under it by no more than face_band_mm(), an offset lower than that not being
+/// the casting's face as the cell sees it (the vision's face samples end there).
 std::function<double(const Vec3&)> face_offset(const RegionInput& in) {
-  return [offset = in.form_offset_mm, lowest = -2.0 * std::max(0.0, in.form_deviation_mm)](const Vec3& p) {
+  return [offset = in.form_offset_mm, lowest = -face_band_mm(in)](const Vec3& p) {
     return std::max(lowest, offset(p));
   };
 }

@@ -291,13 +291,14 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
                            const std::vector<float>& height, double form_deviation_mm, double threshold_mm,
                            double max_height_mm) {
   FormOffset f;
-  std::vector<FaceSample> face;  // within twice the form deviation of the template
+  // The face's band: twice the form deviation (FormOffset; planning's face_band_mm() is its twin)
+  const double band = 2.0 * form_deviation_mm;
+  std::vector<FaceSample> face;  // within the band of the template
   for (std::size_t i = 0; i < owner.size(); ++i) {
-    if (owner[i] < 0 || std::abs(height[i]) > 2.0 * form_deviation_mm) continue;
+    if (owner[i] < 0 || std::abs(height[i]) > band) continue;
     if (T.fine.normals[static_cast<std::size_t>(owner[i])].z() < 0.8f) continue;  // upward faces only
     face.push_back({scene.points[i].x(), scene.points[i].y(), height[i]});
   }
-  auto wide = face;
   if (face.size() < 10) return f;
   const auto median_of = [](std::vector<double> v) {
     const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
@@ -347,9 +348,10 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
   for (std::size_t k = 0; k < face.size(); ++k)
     if (keep[k]) ss += res[k] * res[k], ++f.points;
   f.rms_mm = f.points > 0 ? std::sqrt(ss / static_cast<double>(f.points)) : 0.0;
-  // the local fit's samples: within twice the form deviation of the plane (which carries the
-  // tilt a best fit to a deformed body takes), not of the template
-  std::erase_if(wide, [&](const FaceSample& w) { return std::abs(w.h - f.plane_at(w.x, w.y)) > 2.0 * form_deviation_mm; });
+  // the local fit's samples: within the band of the plane (which carries the tilt a best fit to
+  // a deformed body takes), not of the template
+  auto wide = face;
+  std::erase_if(wide, [&](const FaceSample& w) { return std::abs(w.h - f.plane_at(w.x, w.y)) > band; });
   fit_local_offsets(wide, f);
   for (int round = 0; round < 3; ++round) {
     const auto clear = clear_of_material(wide, T, scene, owner, height, f, threshold_mm, max_height_mm);
