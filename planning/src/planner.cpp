@@ -13,6 +13,8 @@
 
 #include <Eigen/Eigenvalues>
 
+#include "fettle/config/vision.hpp"
+
 namespace fettle::planning {
 namespace {
 
@@ -38,10 +40,7 @@ constexpr double kMaxFaceSlopeRad = 10.0 * std::numbers::pi / 180.0;
 /// wheel worn a little more than the cell predicts leave no ridge between two rows.
 constexpr double kMaxStepoverShare = 0.8;
 
-/// How far the casting's face may stand off the template as the cell sees it: twice the stated
-/// form deviation (the form, and as much again for the tilt and lift of the part's located pose;
-/// vision::FormOffset takes its face samples from the same band).
-double face_band_mm(const RegionInput& in) { return 2.0 * std::max(0.0, in.form_deviation_mm); }
+double face_band_mm(const RegionInput& in) { return config::face_band_mm(in.form_deviation_mm); }
 
 Error region_error(const std::string& region, const std::string& code, const std::string& what) {
   return Error{"planning." + code, "region '" + region + "': " + what};

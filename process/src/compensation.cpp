@@ -608,13 +608,12 @@ void CellBias::add_wear_measurements(const CutOffset& measured, const ToolWearMm
 }
 
 std::optional<double> wear_slack_mm(const config::PartRecipe& recipe, const config::Tool& tool) {
-  constexpr double kVerificationLevelMm = 0.3;  // VerificationSettings::ok_max_share_over_0_3_pct's level
   std::optional<double> out;
   for (const auto& r : recipe.regions) {
     if (r.tool != tool.name || tool.shape == config::ToolShape::cone) continue;
     // a cylinder's flat end grinds a riser's face: its radius leaves nothing there
     if (r.type == config::RegionType::riser && tool.shape == config::ToolShape::cylinder) continue;
-    const double slack = kVerificationLevelMm - r.allowance_mm;
+    const double slack = config::VerificationSettings::kShareLevelMm - r.allowance_mm;
     if (!out || slack < *out) out = slack;
   }
   return out;

@@ -96,9 +96,9 @@ RegionVerification judge_region(const config::Region& region, const config::Veri
   std::size_t gouged = 0, too_high = 0;
   for (const float r : residual_mm) {
     const double a = std::abs(r);
-    v.over_0_3 += a > 0.3 ? 1 : 0;
+    v.over_0_3 += a > config::VerificationSettings::kShareLevelMm ? 1 : 0;
     v.over_0_4 += a > 0.4 ? 1 : 0;
-    v.over_0_5 += a > 0.5 ? 1 : 0;
+    v.over_0_5 += a > config::VerificationSettings::kStrictShareLevelMm ? 1 : 0;
     v.max_residual_mm = std::max(v.max_residual_mm, a);
     v.max_above_mm = std::max(v.max_above_mm, static_cast<double>(r));
     v.max_below_mm = std::max(v.max_below_mm, static_cast<double>(-r));

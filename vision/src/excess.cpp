@@ -10,6 +10,8 @@
 #include <pcl/search/kdtree.h>
 #include <pcl/segmentation/extract_clusters.h>
 
+#include "fettle/config/vision.hpp"
+
 #include "detail.hpp"
 #include "prepared_impl.hpp"
 
@@ -291,8 +293,7 @@ FormOffset fit_form_offset(const PreparedCloud::Impl& T, const Cloud& scene, con
                            const std::vector<float>& height, double form_deviation_mm, double threshold_mm,
                            double max_height_mm) {
   FormOffset f;
-  // The face's band: twice the form deviation (FormOffset; planning's face_band_mm() is its twin)
-  const double band = 2.0 * form_deviation_mm;
+  const double band = config::face_band_mm(form_deviation_mm);
   std::vector<FaceSample> face;  // within the band of the template
   for (std::size_t i = 0; i < owner.size(); ++i) {
     if (owner[i] < 0 || std::abs(height[i]) > band) continue;

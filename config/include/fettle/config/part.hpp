@@ -85,6 +85,10 @@ struct TemplateSource {
 
 /// [verification]: the verdict of the scan after grinding, per region (fettle::daemon::verify).
 struct VerificationSettings {
+  /// The levels the shares count against (Zhu et al.'s Table 2: points more than 0.3 / 0.5 mm off
+  /// the template). The planner's wear slack (process::wear_slack_mm) keeps under the first.
+  static constexpr double kShareLevelMm = 0.3;
+  static constexpr double kStrictShareLevelMm = 0.5;
   double ok_max_share_over_0_3_pct = 1.0;  ///< OK needs at most this share of ROI points > 0.3 mm off
   double ok_max_share_over_0_5_pct = 0.1;  ///< ... and at most this share > 0.5 mm off
   double gouge_depth_mm = 0.3;             ///< a point this far below the template is gouged ...

@@ -1,6 +1,7 @@
 #pragma once
 // Vision pipeline settings ([vision] in a part recipe). Lengths in mm, angles in degrees
 // (converted at use). Every field has a default that works for the shipped pump body.
+#include <algorithm>
 #include <array>
 #include <string>
 
@@ -41,5 +42,12 @@ struct VisionSettings {
   double form_deviation_mm = 0.5;
   bool cache = true;                   ///< cache template data on disk next to the recipe
 };
+
+/// How far the casting's face may stand off the template as the cell sees it: twice the stated
+/// form deviation (the form, and as much again for the tilt and lift of the part's located
+/// pose). Vision fits the casting's face to the samples within it (vision::FormOffset); planning
+/// lets a riser's layers and the passes' ends follow that face within it. Test
+/// Excess.AFaceFartherFromTheRegionsPlaneThanTheFormDeviationIsStillFollowed.
+[[nodiscard]] inline double face_band_mm(double form_deviation_mm) { return 2.0 * std::max(0.0, form_deviation_mm); }
 
 }  // namespace fettle::config
