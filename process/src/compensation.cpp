@@ -666,14 +666,22 @@ PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, 
   PlacementUncertainty u;
   if (safety.calibration_accuracy_mm <= 0.0 && safety.robot_accuracy_mm <= 0.0 && safety.robot_repeatability_mm <= 0.0)
     return u;  // nothing stated: the regions' allowances alone
-  const double systematic2 =
-      safety.calibration_accuracy_mm * safety.calibration_accuracy_mm + safety.robot_accuracy_mm * safety.robot_accuracy_mm;
+  // The systematic errors are independent: their root sum of squares. The repeatability adds to
+  // it: a wheel keeps the deepest of the many noisy poses that sweep over a point, so the path's
+  // noise deepens the whole cut by most of its 3 sigma, one-sided, rather than scattering it.
+  const double systematic = std::hypot(safety.calibration_accuracy_mm, safety.robot_accuracy_mm);
+  const double repeatability = safety.robot_repeatability_mm;
   const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
   const Eigen::Matrix3d& P = bias.learned;
   const double g = std::clamp(settings.gain, 1e-6, 1.0);
   const double left = std::pow(1.0 - g, static_cast<double>(bias.updates));  // of the stated systematic error
-  u.bound_mm2 = systematic2 * (I - P) + left * left * systematic2 * P + g / (2.0 - g) * (P * bias.scatter_mm2 * P) +
-                safety.robot_repeatability_mm * safety.robot_repeatability_mm * I;
+  const double unlearned = systematic + repeatability;
+  // Along a learned direction the estimate holds all but `left` of both, the envelope's depth
+  // included; the noise itself stays (the repeatability, as a scatter about that depth), and so
+  // does the estimate's own spread.
+  u.bound_mm2 = unlearned * unlearned * (I - P) +
+                (left * left * unlearned * unlearned + repeatability * repeatability) * P +
+                g / (2.0 - g) * (P * bias.scatter_mm2 * P);
   return u;
 }
 

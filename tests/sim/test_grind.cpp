@@ -3,10 +3,12 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 #include <optional>
 #include <unistd.h>
+#include <vector>
 
 #include "fettle/core/error.hpp"
 #include "sim_test_util.hpp"
@@ -286,6 +288,38 @@ TEST(SimGrind, PathNoiseHasTheConfiguredSigma) {
     EXPECT_NEAR(mean, 0.2, 0.2 * sigma) << "sigma " << sigma;
     EXPECT_NEAR(sd, sigma, 0.15 * sigma) << "sigma " << sigma;
   }
+}
+
+// A wheel keeps the deepest of the noisy poses that sweep over a point: a ball pass commanded
+// onto the face cuts below it along its whole length, by well over one sigma of the path noise
+// and within the 3 sigma a robot states as its repeatability. So the planner's bound adds the
+// repeatability to the systematic errors rather than in quadrature
+// (Compensation.PlacementUncertaintyShrinksAlongWhatTheCellLearnedOnly).
+TEST(SimGrind, PathNoiseDeepensTheCutOneSided) {
+  const auto recipe = sim_test::pump_body();
+  const auto& f = recipe.geometry.straight_flashes.at(0);
+  constexpr double kSigma = 0.05;
+  Casting c = Casting::make(recipe, 1, CastingOptions{.vary = false});
+  const double face = c.golden_top_z_mm(f.start_mm[0], f.start_mm[1]);
+  GrindOptions o;
+  o.tool = find_tool(recipe, "ball-12");
+  o.path_noise_mm = kSigma;
+  o.gouge_threshold_mm = 1.0;  // the cut's depth is read from the surface below
+  fettle::Trajectory t;
+  for (const double s : {-8.0, 48.0}) {
+    fettle::TrajectoryPoint q;
+    q.T_base_tool.position_mm = c.T_base_part() * fettle::Vec3(f.start_mm[0] + s, f.start_mm[1], face);
+    q.speed_mm_s = 20;
+    q.spindle_rpm = 9000;
+    t.points.push_back(q);
+  }
+  ASSERT_TRUE(grind(c, t, o).ok());
+  std::vector<double> depth;
+  for (double s = 0.0; s <= 40.0; s += 0.5) depth.push_back(face - c.surface_z_mm(f.start_mm[0] + s, f.start_mm[1]));
+  std::sort(depth.begin(), depth.end());
+  EXPECT_GT(depth.front(), 0.0) << "no point of the groove is left at the commanded depth";
+  EXPECT_GT(depth[depth.size() / 2], 1.0 * kSigma);
+  EXPECT_LT(depth[depth.size() / 2], 3.0 * kSigma);
 }
 
 TEST(SimGrind, PosesAreInterpolatedAtMostTheConfiguredSpacingApart) {

@@ -236,11 +236,13 @@ struct CellBias {
 
 /// How far from where the plan says the tool may really cut, base frame: the bound along a unit
 /// direction n is sqrt(n^T bound_mm2 n). From the cell's stated accuracies ([safety]
-/// calibration_accuracy_mm, robot_accuracy_mm, robot_repeatability_mm, combined as a root sum of
-/// squares) and what it learned: along the learned directions the systematic part (calibration,
-/// robot accuracy) is replaced by the estimate's own uncertainty, what is left of the stated
-/// systematic error after `updates` steps of `gain` plus the measurements' scatter through the
-/// estimate's smoothing (gain / (2 - gain) of it). Repeatability stays: learning cannot take it.
+/// calibration_accuracy_mm and robot_accuracy_mm as a root sum of squares, plus
+/// robot_repeatability_mm: a wheel keeps the deepest of the noisy poses that sweep a point, so
+/// the path's noise deepens the cut one-sided by most of its 3 sigma) and what it learned: along
+/// the learned directions that sum is replaced by the estimate's own uncertainty, what is left of
+/// it after `updates` steps of `gain` plus the measurements' scatter through the estimate's
+/// smoothing (gain / (2 - gain) of it). Repeatability stays, as a scatter about the learned depth:
+/// learning cannot take the noise itself.
 /// Nothing stated: zero (the regions' allowances alone).
 /// The planner keeps every path at least this far from the template along the surface's normal
 /// (planning::RegionInput::placement_bound_mm2). Tests: Compensation.PlacementUncertainty*.
