@@ -121,10 +121,11 @@ bench: build
 # part. Results in $(BUILD_DIR)/accuracy/.
 # The run's summary.md goes into docs/results.md, pass or fail. ERRORS=config/sim/errors-realistic.toml
 # runs it in a world with a real cell's errors (docs/simulator.md, "Error budget"), into its own
-# section; CELL_SEED draws that cell's calibration and robot errors (default 1; the summary names it).
+# section; CELL_SEED draws that cell's calibration and robot errors (default random: drawn when it
+# runs and printed, like the castings; the summary names it).
 ACCURACY_SEEDS ?= random:50
 ERRORS ?=
-CELL_SEED ?=
+CELL_SEED ?= random
 accuracy: build
 	rm -f $(BUILD_DIR)/accuracy/summary.md
 	$(BUILD_DIR)/bin/fettle-sim trial --part config/parts/pump-body.toml --cell config/cell.sim.toml \

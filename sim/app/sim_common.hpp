@@ -5,6 +5,7 @@
 #include <ctime>
 #include <filesystem>
 #include <optional>
+#include <random>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -78,7 +79,22 @@ inline void add_error_options(CLI::App* cmd, ErrorOptions& o) {
                   "Error budget file ([errors]: calibration, slide, intrinsics, path, depth, form, wheel wear; "
                   "config/sim/errors-realistic.toml); the cell is not told")
       ->check(CLI::ExistingFile);
-  cmd->add_option("--cell-seed", o.cell_seed, "Draws the cell's errors (--errors), the same for every casting")
+  // "random": a cell drawn now (printed, so the run can be repeated), as the castings of
+  // `--seeds random:N` are: a claim about the cell comes from cells nobody looked at first.
+  const CLI::Validator drawn(
+      [](std::string& text) {
+        if (text != "random") return std::string();
+        std::random_device rd;
+        text = std::to_string(std::uniform_int_distribution<std::uint64_t>(1000, 99999999)(rd));
+        std::printf("cell seed %s (drawn now for --cell-seed random; repeat with --cell-seed %s)\n", text.c_str(),
+                    text.c_str());
+        std::fflush(stdout);
+        return std::string();
+      },
+      "", "random");
+  cmd->add_option("--cell-seed", o.cell_seed,
+                  "Draws the cell's errors (--errors), the same for every casting; N or random (drawn now, printed)")
+      ->transform(drawn)
       ->capture_default_str();
 }
 

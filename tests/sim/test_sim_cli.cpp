@@ -12,6 +12,7 @@
 #include <regex>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -173,6 +174,31 @@ TEST_F(SimCli, ScanIsByteIdenticalForTheSameSeedAndDiffersForAnother) {
   EXPECT_EQ(files, 2u * 7u);  // two views: ply, pcd, c16, c16.json, f32, f32.json, truth.json
   EXPECT_NE(slurp(dir_ / "a" / "view1.c16"), slurp(dir_ / "c" / "view1.c16"));
   EXPECT_NE(slurp(dir_ / "a" / "view0.truth.json"), slurp(dir_ / "c" / "view0.truth.json"));
+}
+
+// `--cell-seed random` draws a cell when the command runs and prints it, so a claim about a cell
+// comes from one nobody looked at first and the run can still be repeated; a word that is
+// neither a number nor "random" is refused.
+TEST_F(SimCli, ARandomCellSeedIsDrawnNowAndPrinted) {
+  const std::string small = " --width 688 --positions-mm 0 --errors " + std::string(FETTLE_SOURCE_DIR) +
+                            "/config/sim/errors-realistic.toml";
+  std::vector<std::string> drawn;
+  for (const char* out : {"a", "b"}) {
+    const auto r = sim("scan --part " + kPart + " --seed 9 --cell-seed random --out " + (dir_ / out).string() + small, dir_);
+    ASSERT_EQ(r.exit_code, 0) << r.out << r.err;
+    std::smatch m;
+    ASSERT_TRUE(std::regex_search(r.out, m, std::regex("cell seed ([0-9]+) \\(drawn now for --cell-seed random; "
+                                                       "repeat with --cell-seed ([0-9]+)\\)")))
+        << r.out;
+    EXPECT_EQ(m[1].str(), m[2].str());
+    const auto errors = nlohmann::json::parse(slurp(dir_ / out / "errors.json"));
+    EXPECT_EQ(errors.dump().find("\"cell_seed\":" + m[1].str()) != std::string::npos, true) << errors.dump();
+    drawn.push_back(m[1].str());
+  }
+  EXPECT_NE(drawn[0], drawn[1]) << "two runs drew the same cell";
+  const auto bad = sim("scan --part " + kPart + " --seed 9 --cell-seed banana --out " + (dir_ / "c").string() + small, dir_);
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_THAT(bad.err, HasSubstr("--cell-seed"));
 }
 
 TEST_F(SimCli, GrindRemovesTheFlashAndEvaluateTabulatesTheResult) {
