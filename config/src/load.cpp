@@ -97,6 +97,7 @@ void read_cell(TableReader& root, CellConfig& cfg) {
     t->number("min_clearance_mm", s.min_clearance_mm, {0.0, 10.0});
     t->number("calibration_accuracy_mm", s.calibration_accuracy_mm, {0.0, 5.0});
     t->number("robot_accuracy_mm", s.robot_accuracy_mm, {0.0, 5.0});
+    t->number("tcp_accuracy_mm", s.tcp_accuracy_mm, {0.0, 5.0});
     t->number("robot_repeatability_mm", s.robot_repeatability_mm, {0.0, 5.0});
   }
   if (auto t = root.table("control")) {

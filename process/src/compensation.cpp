@@ -661,32 +661,51 @@ std::string PlacementUncertainty::describe() const {
   return buf;
 }
 
-PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const CellBias& bias,
-                                           const config::CompensationSection& settings) {
+double largest_tool_tilt_deg(const config::PartRecipe& recipe) {
+  double tilt = 0.0;
+  for (const auto& r : recipe.regions) {
+    const bool flash = r.type == config::RegionType::ring_flash || r.type == config::RegionType::circle_flash;
+    // a chamfering tool's axis leans chamfer_deg from the parting plane (planning's chamfer pose)
+    if (flash && r.contact == config::FlashContact::chamfer) tilt = std::max(tilt, 90.0 - r.chamfer_deg);
+  }
+  return std::clamp(tilt, 0.0, 90.0);
+}
+
+PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const config::PartRecipe& recipe,
+                                           const CellBias& bias, const config::CompensationSection& settings) {
   PlacementUncertainty u;
-  if (safety.calibration_accuracy_mm <= 0.0 && safety.robot_accuracy_mm <= 0.0 && safety.robot_repeatability_mm <= 0.0)
+  if (safety.calibration_accuracy_mm <= 0.0 && safety.robot_accuracy_mm <= 0.0 && safety.tcp_accuracy_mm <= 0.0 &&
+      safety.robot_repeatability_mm <= 0.0)
     return u;  // nothing stated: the regions' allowances alone
-  // The systematic errors are independent: their root sum of squares. The repeatability adds to
-  // it: a wheel keeps the deepest of the many noisy poses that sweep over a point, so the path's
-  // noise deepens the whole cut by most of its 3 sigma, one-sided, rather than scattering it.
-  const double systematic = std::hypot(safety.calibration_accuracy_mm, safety.robot_accuracy_mm);
+  // The systematic errors are independent: their root sum of squares, the TCP's along the tools'
+  // axes only (straight down, leaning at most the recipe's largest tilt). The repeatability adds
+  // to it: a wheel keeps the deepest of the many noisy poses that sweep over a point, so the
+  // path's noise deepens the whole cut by most of its 3 sigma, one-sided, rather than scattering it.
+  const double tilt = deg_to_rad(largest_tool_tilt_deg(recipe));
+  const double any2 = safety.calibration_accuracy_mm * safety.calibration_accuracy_mm +
+                      safety.robot_accuracy_mm * safety.robot_accuracy_mm;
+  const double tcp2 = safety.tcp_accuracy_mm * safety.tcp_accuracy_mm;
   const double repeatability = safety.robot_repeatability_mm;
+  const double sideways = std::sqrt(any2 + tcp2 * std::sin(tilt) * std::sin(tilt)) + repeatability;
+  const double vertically = std::sqrt(any2 + tcp2 * std::cos(tilt) * std::cos(tilt)) + repeatability;
   const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
+  const Eigen::Matrix3d Z = Vec3::UnitZ() * Vec3::UnitZ().transpose();
+  const Eigen::Matrix3d unlearned = sideways * sideways * (I - Z) + vertically * vertically * Z;
   const Eigen::Matrix3d& P = bias.learned;
+  const Eigen::Matrix3d Q = I - P;
   const double g = std::clamp(settings.gain, 1e-6, 1.0);
   const double left = std::pow(1.0 - g, static_cast<double>(bias.updates));  // of the stated systematic error
-  const double unlearned = systematic + repeatability;
-  // Along a learned direction the estimate holds all but `left` of both, the envelope's depth
+  // Along a learned direction the estimate holds all but `left` of the sum, the envelope's depth
   // included; the noise itself stays (the repeatability, as a scatter about that depth), and so
   // does the estimate's own spread.
-  u.bound_mm2 = unlearned * unlearned * (I - P) +
-                (left * left * unlearned * unlearned + repeatability * repeatability) * P +
+  u.bound_mm2 = Q * unlearned * Q + P * (left * left * unlearned + repeatability * repeatability * I) * P +
                 g / (2.0 - g) * (P * bias.scatter_mm2 * P);
   return u;
 }
 
-RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
-                                         const CutOffset& measured, const config::CompensationSection& settings) {
+RegrindCompensation regrind_compensation(const config::SafetySection& safety, const config::PartRecipe& recipe,
+                                         const CellBias& cell, const CutOffset& measured,
+                                         const config::CompensationSection& settings) {
   RegrindCompensation out;
   const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
   // along what `offset` observed: it, bounded by the repeatability and its own scatter; along
@@ -702,7 +721,7 @@ RegrindCompensation regrind_compensation(const config::SafetySection& safety, co
     p.bound_mm2 = Q * bound * Q + P * (repeatability2 * I + scatter) * P;
     return p;
   };
-  const Eigen::Matrix3d usual = placement_uncertainty(safety, cell, settings).bound_mm2;
+  const Eigen::Matrix3d usual = placement_uncertainty(safety, recipe, cell, settings).bound_mm2;
   const auto whole = take(cell.bias_mm, usual, measured.observed, measured.offset_mm, measured.std_mm);
   out.bias_mm = whole.bias_mm;
   out.placement.bound_mm2 = whole.bound_mm2;

@@ -317,11 +317,12 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
 /// With --errors, a cell file that states no accuracy in [safety] gets what an integrator who
 /// measured this cell would state: the calibration's error at the part (the translation plus
 /// the rotation over its lever: the farthest region's distance from the fixture origin, or the
-/// working distance when it turns about the camera), the robot's accuracy (its path offset and
-/// TCP length error) and its ISO 9283 repeatability (3 sigma of the path noise). Printed.
+/// working distance when it turns about the camera), the robot's accuracy (its path offset), the
+/// TCP's (its length error) and its ISO 9283 repeatability (3 sigma of the path noise). Printed.
 void state_accuracies(const fettle::config::PartRecipe& recipe, const CellErrors& errors, const ScannerConfig& nominal,
                       fettle::config::SafetySection& safety) {
-  if (safety.calibration_accuracy_mm > 0.0 || safety.robot_accuracy_mm > 0.0 || safety.robot_repeatability_mm > 0.0)
+  if (safety.calibration_accuracy_mm > 0.0 || safety.robot_accuracy_mm > 0.0 || safety.tcp_accuracy_mm > 0.0 ||
+      safety.robot_repeatability_mm > 0.0)
     return;
   const auto& b = errors.budget;
   double lever_mm = 0.0;
@@ -331,12 +332,13 @@ void state_accuracies(const fettle::config::PartRecipe& recipe, const CellErrors
                                                                : at.norm());
   }
   safety.calibration_accuracy_mm = b.hand_eye_mm + fettle::deg_to_rad(b.hand_eye_deg) * lever_mm;
-  // the bias's direction is drawn at random: along a vertical tool it adds to the TCP error
-  safety.robot_accuracy_mm = b.path_bias_mm + b.tcp_length_mm;
+  safety.robot_accuracy_mm = b.path_bias_mm;  // drawn in a random direction
+  safety.tcp_accuracy_mm = b.tcp_length_mm;    // along the tool's axis
   safety.robot_repeatability_mm = 3.0 * b.path_noise_mm;
   std::printf("the cell states (its file states none): calibration_accuracy_mm %.3f (over a %.0f mm lever), "
-              "robot_accuracy_mm %.3f, robot_repeatability_mm %.3f\n",
-              safety.calibration_accuracy_mm, lever_mm, safety.robot_accuracy_mm, safety.robot_repeatability_mm);
+              "robot_accuracy_mm %.3f, tcp_accuracy_mm %.3f, robot_repeatability_mm %.3f\n",
+              safety.calibration_accuracy_mm, lever_mm, safety.robot_accuracy_mm, safety.tcp_accuracy_mm,
+              safety.robot_repeatability_mm);
   std::fflush(stdout);
 }
 
@@ -464,7 +466,7 @@ int trial(const Args& a) {
       popt.tool_wear_most_mm = cell_bias.tool_wear_most_mm(recipe);
     }
     const auto placement = fettle::process::placement_uncertainty(
-        cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation);
+        cell.safety, recipe, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation);
     popt.placement_bound_mm2 = placement.bound_mm2;
     if (learning) popt.region_placement = cell_bias.region_placement(placement.bound_mm2);
     if (!placement.bound_mm2.isZero()) {
@@ -621,9 +623,9 @@ int trial(const Args& a) {
       ro.regions = ver->regrind_regions();
       ro.cell_bias_mm = learning ? cell_bias.bias_mm : fettle::Vec3::Zero();
       ro.placement_bound_mm2 = fettle::process::placement_uncertainty(
-          cell.safety, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation).bound_mm2;
+          cell.safety, recipe, learning ? cell_bias : fettle::process::CellBias{}, cell.compensation).bound_mm2;
       if (cut_offset) {  // what this cycle's grind measured, as fettled does
-        const auto rc = fettle::process::regrind_compensation(cell.safety, cell_bias, *cut_offset, cell.compensation);
+        const auto rc = fettle::process::regrind_compensation(cell.safety, recipe, cell_bias, *cut_offset, cell.compensation);
         ro.cell_bias_mm = rc.bias_mm;
         ro.placement_bound_mm2 = rc.placement.bound_mm2;
         ro.region_placement = rc.regions;

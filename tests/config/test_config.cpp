@@ -183,10 +183,11 @@ TEST_F(ConfigFileTest, OutOfRangeValueNamesTheAllowedRange) {
 // The cell's stated accuracies: read into [safety], a negative one named with its range.
 TEST_F(ConfigFileTest, StatedAccuraciesAreReadAndANegativeOneIsNamed) {
   const std::string stated = "workspace_max_mm = [500.0, 500.0, 800.0]\ncalibration_accuracy_mm = 0.15\n"
-                             "robot_accuracy_mm = 0.1\nrobot_repeatability_mm = 0.05\n";
+                             "robot_accuracy_mm = 0.1\ntcp_accuracy_mm = 0.07\nrobot_repeatability_mm = 0.05\n";
   const auto cell = fettle::config::load_cell(write("cell.toml", replace(kCell, "workspace_max_mm = [500.0, 500.0, 800.0]\n", stated)));
   EXPECT_DOUBLE_EQ(cell.safety.calibration_accuracy_mm, 0.15);
   EXPECT_DOUBLE_EQ(cell.safety.robot_accuracy_mm, 0.1);
+  EXPECT_DOUBLE_EQ(cell.safety.tcp_accuracy_mm, 0.07);
   EXPECT_DOUBLE_EQ(cell.safety.robot_repeatability_mm, 0.05);
   const auto d = check_file(write("cell.toml", replace(kCell, "workspace_max_mm = [500.0, 500.0, 800.0]\n",
                                                       "workspace_max_mm = [500.0, 500.0, 800.0]\nrobot_accuracy_mm = -0.1\n")));

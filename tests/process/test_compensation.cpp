@@ -229,6 +229,35 @@ TEST(Compensation, EachRegionLearnsItsOwnOffsetAndForgetsItWithItsWheel) {
   EXPECT_LT((bias.region_bias_mm("side-fin") - bias.bias_mm).norm(), 1e-12);
 }
 
+const fettle::config::PartRecipe kNoRegions;  // no tool leans: the TCP's error is vertical
+
+// The TCP's length error moves the cut along the tool's axis only: a wheel whose side grinds a
+// wall does not feel it, a flat end or ball over a face feels all of it, and a chamfering tool
+// leaning 45 deg feels it both ways by cos and sin.
+TEST(Compensation, TheTcpsErrorBoundsTheCutAlongTheToolsAxisOnly) {
+  fettle::config::SafetySection safety;
+  safety.calibration_accuracy_mm = 0.20;
+  safety.robot_accuracy_mm = 0.10;
+  safety.tcp_accuracy_mm = 0.10;
+  safety.robot_repeatability_mm = 0.15;
+  const fettle::config::CompensationSection settings;
+  auto recipe = ball_recipe().recipe;
+  recipe.regions.front().type = fettle::config::RegionType::ring_flash;
+  recipe.regions.front().contact = fettle::config::FlashContact::periphery;
+  EXPECT_DOUBLE_EQ(fp::largest_tool_tilt_deg(recipe), 0.0);
+  const auto side = fp::placement_uncertainty(safety, recipe, fp::CellBias{}, settings);
+  EXPECT_NEAR(side.along_mm(Vec3::UnitX()), std::hypot(0.2, 0.1) + 0.15, 1e-9);
+  EXPECT_NEAR(side.along_mm(Vec3::UnitY()), std::hypot(0.2, 0.1) + 0.15, 1e-9);
+  EXPECT_NEAR(side.along_mm(Vec3::UnitZ()), std::sqrt(0.2 * 0.2 + 0.1 * 0.1 + 0.1 * 0.1) + 0.15, 1e-9);
+  recipe.regions.front().contact = fettle::config::FlashContact::chamfer;
+  recipe.regions.front().chamfer_deg = 45.0;
+  EXPECT_DOUBLE_EQ(fp::largest_tool_tilt_deg(recipe), 45.0);
+  const auto leaning = fp::placement_uncertainty(safety, recipe, fp::CellBias{}, settings);
+  const double half = std::sqrt(0.2 * 0.2 + 0.1 * 0.1 + 0.5 * 0.1 * 0.1) + 0.15;
+  EXPECT_NEAR(leaning.along_mm(Vec3::UnitX()), half, 1e-9);
+  EXPECT_NEAR(leaning.along_mm(Vec3::UnitZ()), half, 1e-9);
+}
+
 // The stated accuracies (calibration 0.20, robot 0.15, repeatability 0.15 mm) bound the cut at
 // the systematic errors' root sum of squares plus the repeatability, 0.40 mm (the wheel keeps the
 // deepest of its noisy poses), until the cell learns a direction; along it the systematic part
@@ -241,7 +270,7 @@ TEST(Compensation, PlacementUncertaintyShrinksAlongWhatTheCellLearnedOnly) {
   safety.robot_repeatability_mm = 0.15;
   const fettle::config::CompensationSection settings;  // gain 0.5
   fp::CellBias bias;
-  const auto stated = fp::placement_uncertainty(safety, bias, settings);
+  const auto stated = fp::placement_uncertainty(safety, kNoRegions, bias, settings);
   const double all = std::hypot(0.2, 0.15) + 0.15;
   for (const Vec3& n : std::vector<Vec3>{Vec3::UnitX(), Vec3::UnitY(), Vec3::UnitZ(), Vec3(1, 1, 1).normalized()})
     EXPECT_NEAR(stated.along_mm(n), all, 1e-9);
@@ -252,9 +281,9 @@ TEST(Compensation, PlacementUncertaintyShrinksAlongWhatTheCellLearnedOnly) {
   for (int k = 0; k < 8; ++k) {
     up.offset_mm = Vec3(0.0, 0.0, -0.25 + (k % 2 == 0 ? 0.04 : -0.04));
     bias.update(up, settings);
-    z_bound.push_back(fp::placement_uncertainty(safety, bias, settings).along_mm(Vec3::UnitZ()));
+    z_bound.push_back(fp::placement_uncertainty(safety, kNoRegions, bias, settings).along_mm(Vec3::UnitZ()));
   }
-  const auto learned = fp::placement_uncertainty(safety, bias, settings);
+  const auto learned = fp::placement_uncertainty(safety, kNoRegions, bias, settings);
   EXPECT_NEAR(learned.along_mm(Vec3::UnitX()), all, 1e-9);
   EXPECT_NEAR(learned.along_mm(Vec3::UnitY()), all, 1e-9);
   EXPECT_LT(z_bound.back(), z_bound.front());
@@ -262,7 +291,7 @@ TEST(Compensation, PlacementUncertaintyShrinksAlongWhatTheCellLearnedOnly) {
   EXPECT_LT(z_bound.back(), 0.17);         // 0.15 and a third of the scatter (about 0.05 mm squared)
   EXPECT_NE(learned.describe().find("0.40 mm sideways"), std::string::npos) << learned.describe();
   // nothing stated: nothing kept beyond the regions' allowances
-  EXPECT_TRUE(fp::placement_uncertainty(fettle::config::SafetySection{}, bias, settings).bound_mm2.isZero());
+  EXPECT_TRUE(fp::placement_uncertainty(fettle::config::SafetySection{}, kNoRegions, bias, settings).bound_mm2.isZero());
 }
 
 // A re-grind after a first grind that measured the cut 0.22 mm low (+-0.002) on faces that look
@@ -281,15 +310,15 @@ TEST(Compensation, AReGrindIsBoundedByWhatItsCycleMeasured) {
   measured.observed = Vec3(0.0, 0.0, 1.0).asDiagonal();
   measured.offset_mm = Vec3(0.0, 0.0, -0.22);
   measured.std_mm = Vec3(0.0, 0.0, 0.002);
-  const auto r = fp::regrind_compensation(safety, cell, measured, settings);
+  const auto r = fp::regrind_compensation(safety, kNoRegions, cell, measured, settings);
   EXPECT_LT((r.bias_mm - Vec3(0.03, -0.02, -0.22)).norm(), 1e-12);
   EXPECT_NEAR(r.placement.along_mm(Vec3::UnitZ()), std::hypot(0.15, 0.002), 1e-9);
   const double all = std::hypot(0.2, 0.15) + 0.15;
   EXPECT_NEAR(r.placement.along_mm(Vec3::UnitX()), all, 1e-9);
   EXPECT_NEAR(r.placement.along_mm(Vec3::UnitY()), all, 1e-9);
-  EXPECT_NEAR(fp::placement_uncertainty(safety, cell, settings).along_mm(Vec3::UnitZ()), all, 1e-9);
+  EXPECT_NEAR(fp::placement_uncertainty(safety, kNoRegions, cell, settings).along_mm(Vec3::UnitZ()), all, 1e-9);
   // nothing stated: nothing kept beyond the regions' allowances
-  EXPECT_TRUE(fp::regrind_compensation(fettle::config::SafetySection{}, cell, measured, settings).placement.bound_mm2.isZero());
+  EXPECT_TRUE(fp::regrind_compensation(fettle::config::SafetySection{}, kNoRegions, cell, measured, settings).placement.bound_mm2.isZero());
 }
 
 // Two regions ground by the same ball 150 mm apart, cut 0.12 mm apart in height (a hand-eye
@@ -335,7 +364,7 @@ TEST(Compensation, AReGrindTakesEachRegionsOwnOffset) {
   safety.robot_repeatability_mm = 0.15;
   fp::CellBias cell;
   cell.bias_mm = Vec3(0.02, 0.0, -0.1);
-  const auto rc = fp::regrind_compensation(safety, cell, *m, fettle::config::CompensationSection{});
+  const auto rc = fp::regrind_compensation(safety, recipe.recipe, cell, *m, fettle::config::CompensationSection{});
   ASSERT_EQ(rc.regions.count("far"), 1u);
   const auto& rf = rc.regions.at("far");
   EXPECT_NEAR(rf.bias_mm.z(), far_offset.z(), 0.02);

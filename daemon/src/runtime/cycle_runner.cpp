@@ -415,8 +415,8 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
   if (!co_await scan(c, c.views, "capture")) co_return;
   ProcessOptions all_regions;
   if (cell.compensation.enabled) c.cell_bias_mm = cell_bias.bias_mm;
-  c.placement = placement_uncertainty(cell.safety, cell.compensation.enabled ? cell_bias : process::CellBias{},
-                                      cell.compensation);
+  c.placement = placement_uncertainty(cell.safety, c.recipe->recipe,
+                                      cell.compensation.enabled ? cell_bias : process::CellBias{}, cell.compensation);
   all_regions.cell_bias_mm = c.cell_bias_mm;
   if (cell.compensation.enabled) {
     c.tool_wear_mm = cell_bias.tool_wear_mm(c.recipe->recipe);
@@ -464,7 +464,8 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     }
     if (cell.compensation.enabled && c.cut_offset && *c.cut_offset) {
       // what this cycle's grind measured (process::regrind_compensation)
-      const auto rc = process::regrind_compensation(cell.safety, cell_bias, c.cut_offset->value(), cell.compensation);
+      const auto rc = process::regrind_compensation(cell.safety, c.recipe->recipe, cell_bias, c.cut_offset->value(),
+                                                      cell.compensation);
       po.cell_bias_mm = rc.bias_mm;
       po.placement_bound_mm2 = rc.placement.bound_mm2;
       po.region_placement = rc.regions;

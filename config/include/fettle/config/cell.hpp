@@ -46,11 +46,12 @@ struct SafetySection {
   double min_clearance_mm = 0.05;
   /// The cell's stated accuracies, each a bound (the largest error expected, as datasheets and
   /// ISO 9283 state them; 0 = not stated). Every path keeps at least the root sum of squares of
-  /// the calibration and robot accuracy plus the repeatability from the template along each
+  /// the calibration, robot and TCP accuracy plus the repeatability from the template along each
   /// surface's normal, less what the cell has learned of its own bias
   /// (process::placement_uncertainty, docs/compensation.md).
   double calibration_accuracy_mm = 0.0;  ///< hand-eye calibration's error at the part
-  double robot_accuracy_mm = 0.0;        ///< path accuracy: a constant offset, the TCP length's error
+  double robot_accuracy_mm = 0.0;        ///< path accuracy: a constant offset of the path, any direction
+  double tcp_accuracy_mm = 0.0;          ///< the tool length's (TCP's) error: along the tool's axis only
   double robot_repeatability_mm = 0.0;   ///< path repeatability (ISO 9283: mean + 3 sigma)
 };
 

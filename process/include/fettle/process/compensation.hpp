@@ -236,9 +236,10 @@ struct CellBias {
 
 /// How far from where the plan says the tool may really cut, base frame: the bound along a unit
 /// direction n is sqrt(n^T bound_mm2 n). From the cell's stated accuracies ([safety]
-/// calibration_accuracy_mm and robot_accuracy_mm as a root sum of squares, plus
-/// robot_repeatability_mm: a wheel keeps the deepest of the noisy poses that sweep a point, so
-/// the path's noise deepens the cut one-sided by most of its 3 sigma) and what it learned: along
+/// calibration_accuracy_mm, robot_accuracy_mm and tcp_accuracy_mm as a root sum of squares, the
+/// TCP's along the tools' axes only: straight down, leaning at most largest_tool_tilt_deg();
+/// plus robot_repeatability_mm: a wheel keeps the deepest of the noisy poses that sweep a point,
+/// so the path's noise deepens the cut one-sided by most of its 3 sigma) and what it learned: along
 /// the learned directions that sum is replaced by the estimate's own uncertainty, what is left of
 /// it after `updates` steps of `gain` plus the measurements' scatter through the estimate's
 /// smoothing (gain / (2 - gain) of it). Repeatability stays, as a scatter about the learned depth:
@@ -252,8 +253,12 @@ struct PlacementUncertainty {
   /// "0.26 mm sideways, 0.16 mm vertically" (the bounds along base x-y and z).
   [[nodiscard]] std::string describe() const;
 };
-PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const CellBias& bias,
-                                           const config::CompensationSection& settings);
+PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const config::PartRecipe& recipe,
+                                           const CellBias& bias, const config::CompensationSection& settings);
+/// How far the recipe's tools lean from the parting plane's normal at most: 90 - chamfer_deg for
+/// a flash ground with contact = "chamfer", 0 for every other pose the planner makes (a wheel's
+/// side against a wall, a ball or flat end over a face, all along the normal).
+double largest_tool_tilt_deg(const config::PartRecipe& recipe);
 
 /// A re-grind in the cycle whose first grind measured `measured`: along the directions that
 /// measurement observed it is commanded with the offset measured (this casting, this place, this
@@ -271,8 +276,9 @@ struct RegrindCompensation {
   PlacementUncertainty placement;
   std::map<std::string, RegionPlacement> regions;  ///< ProcessOptions::region_placement
 };
-RegrindCompensation regrind_compensation(const config::SafetySection& safety, const CellBias& cell,
-                                         const CutOffset& measured, const config::CompensationSection& settings);
+RegrindCompensation regrind_compensation(const config::SafetySection& safety, const config::PartRecipe& recipe,
+                                         const CellBias& cell, const CutOffset& measured,
+                                         const config::CompensationSection& settings);
 
 /// The wheels' least wear for a re-grind in the cycle whose first grind measured `measured`, its
 /// wheels planned worn `commanded`: a wheel whose cut showed its radius is at least commanded +
