@@ -567,6 +567,13 @@ int trial(const Args& a) {
     auto ver = fettle::process::verify(loaded, cell, rescan.views, {out->trajectory}, vo);
     const std::string first_verdict = ver ? fettle::process::to_string(ver->verdict) : "error";
     sj["first_verdict"] = first_verdict;
+    // which regions the first verification did not pass, and why (printed with the casting's line)
+    std::string first_reasons;
+    if (ver)
+      for (const auto& v : ver->regions)
+        if (v.verdict != fettle::process::Verdict::ok)
+          first_reasons += (first_reasons.empty() ? "" : "; ") + v.name + ": " + v.reason;
+    if (!first_reasons.empty()) sj["first_verdict_reasons"] = first_reasons;
     std::optional<fettle::process::CutOffset> cut_offset;  // this cycle's, for its re-grind
     // the iron each wheel removed, as the cell sees it: the first verification against the first
     // scan, else (no verification) what the inspection found to remove
@@ -893,6 +900,7 @@ int trial(const Args& a) {
     if (ver && ver->worst_gouge) vnote = " (" + ver->worst_gouge->describe() + ")";
     char commanded_note[48] = "";
     if (errors) std::snprintf(commanded_note, sizeof commanded_note, " (%.3f mm as commanded)", seed_commanded_cut);
+    if (!first_reasons.empty()) vnote += ", first verification " + first_verdict + " (" + first_reasons + ")";
     std::fprintf(stderr, ": %s, verdict %s%s, plan %.1f ms, deepest cut into its own body %.3f mm%s, against the nominal %.3f mm (%.1f s)%s\n",
                  missed                 ? "GOUGE MISSED"
                  : biased               ? (gouged ? "gouged on purpose, caught" : "not gouged past gouge_depth_mm")
