@@ -678,7 +678,8 @@ PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, 
       safety.robot_repeatability_mm <= 0.0)
     return u;  // nothing stated: the regions' allowances alone
   // The systematic errors are independent: their root sum of squares, the TCP's along the tools'
-  // axes only (straight down, leaning at most the recipe's largest tilt). The repeatability adds
+  // axes only: all of it vertically (a tool straight down, or nearly), sideways as much as the
+  // recipe's most leaning tool turns it. The repeatability adds
   // to it: a wheel keeps the deepest of the many noisy poses that sweep over a point, so the
   // path's noise deepens the whole cut by most of its 3 sigma, one-sided, rather than scattering it.
   const double tilt = deg_to_rad(largest_tool_tilt_deg(recipe));
@@ -687,7 +688,7 @@ PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, 
   const double tcp2 = safety.tcp_accuracy_mm * safety.tcp_accuracy_mm;
   const double repeatability = safety.robot_repeatability_mm;
   const double sideways = std::sqrt(any2 + tcp2 * std::sin(tilt) * std::sin(tilt)) + repeatability;
-  const double vertically = std::sqrt(any2 + tcp2 * std::cos(tilt) * std::cos(tilt)) + repeatability;
+  const double vertically = std::sqrt(any2 + tcp2) + repeatability;
   const Eigen::Matrix3d I = Eigen::Matrix3d::Identity();
   const Eigen::Matrix3d Z = Vec3::UnitZ() * Vec3::UnitZ().transpose();
   const Eigen::Matrix3d unlearned = sideways * sideways * (I - Z) + vertically * vertically * Z;

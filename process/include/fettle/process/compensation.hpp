@@ -237,7 +237,8 @@ struct CellBias {
 /// How far from where the plan says the tool may really cut, base frame: the bound along a unit
 /// direction n is sqrt(n^T bound_mm2 n). From the cell's stated accuracies ([safety]
 /// calibration_accuracy_mm, robot_accuracy_mm and tcp_accuracy_mm as a root sum of squares, the
-/// TCP's along the tools' axes only: straight down, leaning at most largest_tool_tilt_deg();
+/// TCP's along the tools' axes only: all of it vertically, sideways by the sine of
+/// largest_tool_tilt_deg();
 /// plus robot_repeatability_mm: a wheel keeps the deepest of the noisy poses that sweep a point,
 /// so the path's noise deepens the cut one-sided by most of its 3 sigma) and what it learned: along
 /// the learned directions that sum is replaced by the estimate's own uncertainty, what is left of
