@@ -671,12 +671,15 @@ double largest_tool_tilt_deg(const config::PartRecipe& recipe) {
   return std::clamp(tilt, 0.0, 90.0);
 }
 
+bool states_accuracy(const config::SafetySection& safety) {
+  return safety.calibration_accuracy_mm > 0.0 || safety.robot_accuracy_mm > 0.0 || safety.tcp_accuracy_mm > 0.0 ||
+         safety.robot_repeatability_mm > 0.0;
+}
+
 PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const config::PartRecipe& recipe,
                                            const CellBias& bias, const config::CompensationSection& settings) {
   PlacementUncertainty u;
-  if (safety.calibration_accuracy_mm <= 0.0 && safety.robot_accuracy_mm <= 0.0 && safety.tcp_accuracy_mm <= 0.0 &&
-      safety.robot_repeatability_mm <= 0.0)
-    return u;  // nothing stated: the regions' allowances alone
+  if (!states_accuracy(safety)) return u;  // nothing stated: the regions' allowances alone
   // The systematic errors are independent: their root sum of squares, the TCP's along the tools'
   // axes only: all of it vertically (a tool straight down, or nearly), sideways as much as the
   // recipe's most leaning tool turns it. The repeatability adds

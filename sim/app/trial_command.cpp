@@ -321,9 +321,7 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
 /// TCP's (its length error) and its ISO 9283 repeatability (3 sigma of the path noise). Printed.
 void state_accuracies(const fettle::config::PartRecipe& recipe, const CellErrors& errors, const ScannerConfig& nominal,
                       fettle::config::SafetySection& safety) {
-  if (safety.calibration_accuracy_mm > 0.0 || safety.robot_accuracy_mm > 0.0 || safety.tcp_accuracy_mm > 0.0 ||
-      safety.robot_repeatability_mm > 0.0)
-    return;
+  if (fettle::process::states_accuracy(safety)) return;
   const auto& b = errors.budget;
   double lever_mm = 0.0;
   for (const auto& r : recipe.regions) {

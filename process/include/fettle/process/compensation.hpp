@@ -256,6 +256,9 @@ struct PlacementUncertainty {
 };
 PlacementUncertainty placement_uncertainty(const config::SafetySection& safety, const config::PartRecipe& recipe,
                                            const CellBias& bias, const config::CompensationSection& settings);
+/// Whether [safety] states any accuracy (calibration, robot, TCP, repeatability): without one the
+/// placement bound is zero and the regions' allowances alone are kept.
+bool states_accuracy(const config::SafetySection& safety);
 /// How far the recipe's tools lean from the parting plane's normal at most: 90 - chamfer_deg for
 /// a flash ground with contact = "chamfer", 0 for every other pose the planner makes (a wheel's
 /// side against a wall, a ball or flat end over a face, all along the normal).
