@@ -10,6 +10,7 @@
 #include <numeric>
 #include <optional>
 #include <sstream>
+#include <unordered_map>
 
 #include <Eigen/Eigenvalues>
 
@@ -814,6 +815,7 @@ PlannerSettings PlannerSettings::from(const config::SafetySection& safety) {
   s.max_spindle_rpm = safety.max_spindle_rpm;
   s.safe_height_mm = safety.safe_height_mm;
   s.min_clearance_mm = safety.min_clearance_mm;
+  s.repeatability_mm = safety.robot_repeatability_mm;
   s.air_speed_mm_s = std::min(s.air_speed_mm_s, safety.max_speed_mm_s);
   return s;
 }
@@ -956,12 +958,93 @@ RegionInput validated_against(const RegionInput& in) {
   return moved_along_z(in, [face = face_offset(in)](const Vec3& p) { return std::min(0.0, face(p)); });
 }
 
+/// What a re-grind's leftover fin shows (RegionInput::leftover_part): how near the wall the
+/// wheel's side may come beside it. The first grind kept the bound k0 = sqrt(u^T M u) along the
+/// wall's outward normal u and left a fin r wide: the wheel's side stood r off the wall, so its
+/// placement error along u is known to within the path's repeatability, and the bound along u
+/// shrinks to k0 - (r - repeatability). Along another normal n = (n.u) u + n_perp the fin tells
+/// nothing of the error across u: the bound is (n.u) (k0 - s) + sqrt(n_perp^T M n_perp) where
+/// smaller than sqrt(n^T M n) (a face under the fin, n across u, keeps its bound). Per point,
+/// the third smallest such bound of the leftover points within kRadiusMm of it in the parting
+/// plane (one stray point moves nothing), of those at the fin's level (within flash_band_mm of
+/// the first plan's plane).
+class LeftoverFin {
+ public:
+  static constexpr double kRadiusMm = 1.0;
+  static constexpr std::size_t kRank = 3;
+
+  LeftoverFin(const RegionInput& in, const PlannerSettings& settings) {
+    const auto& region = *in.region;
+    if (in.first == nullptr || in.first->type != region.type || region.contact != config::FlashContact::periphery ||
+        (region.type != config::RegionType::ring_flash && region.type != config::RegionType::circle_flash) ||
+        in.leftover_part.size() != in.leftover_mm.size())
+      return;
+    const Vec3 w = in.first->plane.normal.normalized();
+    origin_ = in.first->conic_origin;
+    e1_ = any_perpendicular(w);
+    e2_ = w.cross(e1_);
+    const double repeatability = std::max(0.0, settings.repeatability_mm);
+    for (std::size_t i = 0; i < in.leftover_part.size(); ++i) {
+      const Vec3 d = in.leftover_part[i] - origin_;
+      if (std::abs(d.dot(w)) > settings.flash_band_mm || !(in.leftover_mm[i] > repeatability)) continue;
+      const Vec3 u = sdf_gradient(in.template_sdf, in.leftover_part[i], 0.25);  // out of the wall
+      if (!(u.norm() > 1e-9)) continue;
+      cells_[key(d.dot(e1_), d.dot(e2_))].push_back({d.dot(e1_), d.dot(e2_), in.leftover_mm[i] - repeatability,
+                                                     u.normalized()});
+    }
+  }
+  [[nodiscard]] bool empty() const { return cells_.empty(); }
+
+  /// The bound (mm) beside p (part frame) along the surface's unit normal n there, at most
+  /// sqrt(n^T M n).
+  [[nodiscard]] double bound_mm(const Vec3& p, const Vec3& n, const Eigen::Matrix3d& M) const {
+    const double full = std::sqrt(std::max(0.0, n.dot(M * n)));
+    if (cells_.empty()) return full;
+    const Vec3 d = p - origin_;
+    const double u = d.dot(e1_), v = d.dot(e2_);
+    std::array<double, kRank> low;  // the kRank smallest, ascending
+    low.fill(full);
+    const auto cu = static_cast<std::int64_t>(std::floor(u / kRadiusMm)), cv = static_cast<std::int64_t>(std::floor(v / kRadiusMm));
+    for (std::int64_t a = cu - 1; a <= cu + 1; ++a)
+      for (std::int64_t b = cv - 1; b <= cv + 1; ++b) {
+        const auto it = cells_.find(pack(a, b));
+        if (it == cells_.end()) continue;
+        for (const auto& q : it->second) {
+          if ((q.u - u) * (q.u - u) + (q.v - v) * (q.v - v) > kRadiusMm * kRadiusMm) continue;
+          const double along = n.dot(q.across);
+          if (along <= 0.0) continue;  // a surface facing away from this wall
+          const Vec3 perp = n - along * q.across;
+          const double k0 = std::sqrt(std::max(0.0, q.across.dot(M * q.across)));
+          const double bound = along * std::max(0.0, k0 - q.less_mm) + std::sqrt(std::max(0.0, perp.dot(M * perp)));
+          if (bound >= low.back()) continue;
+          low.back() = bound;
+          std::sort(low.begin(), low.end());
+        }
+      }
+    return low.back();
+  }
+
+ private:
+  struct Point {
+    double u, v;
+    double less_mm;  // the fin's distance off the wall less the repeatability
+    Vec3 across;     // the wall's outward normal beside it
+  };
+  static std::int64_t pack(std::int64_t a, std::int64_t b) { return (a << 32) ^ (b & 0xFFFFFFFF); }
+  static std::int64_t key(double u, double v) {
+    return pack(static_cast<std::int64_t>(std::floor(u / kRadiusMm)), static_cast<std::int64_t>(std::floor(v / kRadiusMm)));
+  }
+  Vec3 origin_ = Vec3::Zero(), e1_ = Vec3::UnitX(), e2_ = Vec3::UnitY();
+  std::unordered_map<std::int64_t, std::vector<Point>> cells_;
+};
+
 /// The input whose template keeps the placement bound where it exceeds the region's allowance
 /// (see RegionInput::placement_bound_mm2): the surface moved out along its normal n by
 /// max(0, sqrt(n^T M n) - allowance), so that every pose keeping the allowance from it keeps the
 /// bound from the template. n is the distance's gradient (central differences across a grid
-/// voxel); where it has none (a medial point) the largest bound.
-RegionInput kept_from_placement(const RegionInput& in) {
+/// voxel); where it has none (a medial point) the largest bound. Beside a re-grind's leftover
+/// fin (`fin`) a wall keeps as much less as the fin shows (LeftoverFin).
+RegionInput kept_from_placement(const RegionInput& in, const LeftoverFin* fin = nullptr) {
   const Eigen::Matrix3d M = 0.5 * (in.placement_bound_mm2 + in.placement_bound_mm2.transpose());
   const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(M);
   const double allowance = in.region->allowance_mm;
@@ -971,7 +1054,15 @@ RegionInput kept_from_placement(const RegionInput& in) {
   const double most = largest - allowance;
   const auto base = in.template_sdf;
   std::function<double(const Vec3&)> extra;
-  if (largest - smallest < 1e-6) {
+  if (fin != nullptr && !fin->empty()) {
+    extra = [base, M, allowance, most, fin = *fin](const Vec3& p) {
+      Vec3 g = sdf_gradient(base, p, 0.25);
+      const double n = g.norm();
+      if (!(n > 1e-9)) return most;
+      g /= n;
+      return std::max(0.0, fin.bound_mm(p, g, M) - allowance);
+    };
+  } else if (largest - smallest < 1e-6) {
     extra = [most](const Vec3&) { return most; };
   } else {
     extra = [base, M, allowance, most](const Vec3& p) {
@@ -1008,12 +1099,15 @@ Result<RegionPlan> plan_region(const RegionInput& in, const PlannerSettings& set
                         "min_clearance_mm = " + fmt(settings.min_clearance_mm, 3) +
                         ": the last pass would grind nearer the surface than the cell can place it; raise the region's "
                         "allowance_mm");
-  if (in.excess_points_part.size() < kMinRegionPoints) return plan;  // nothing (left) to grind
+  // a re-grind of a flash whose first grind left a fin wider than the repeatability goes round
+  // again however few excess points the re-scan holds (the fin's stub is a few pixels wide)
+  const LeftoverFin fin(in, settings);
+  if (in.excess_points_part.size() < kMinRegionPoints && fin.empty()) return plan;  // nothing (left) to grind
   switch (in.region->type) {
     case config::RegionType::ring_flash:
     case config::RegionType::circle_flash:
       // a flash's loop follows the wall, whose form the camera does not see from above
-      return plan_flash_loop(kept_from_placement(in), settings, std::move(plan));
+      return plan_flash_loop(kept_from_placement(in, &fin), settings, std::move(plan));
     case config::RegionType::riser:
       return plan_riser(kept_from_placement(on_the_castings_face(in)), settings, std::move(plan));
     case config::RegionType::straight_flash:

@@ -198,6 +198,16 @@ Result<ProcessOutput> process(const LoadedRecipe& loaded, const config::CellConf
     if (options.before_plans != nullptr)
       for (const auto& first : *options.before_plans)
         if (first.region == region.name) in.first = &first;
+    if (options.leftover != nullptr)
+      for (const auto& v : options.leftover->regions) {
+        if (v.name != region.name) continue;
+        const Transform T_located_region = T_base_located.inverse() * v.T_base_region;
+        for (std::size_t k = 0; k < v.roi_points_part.size() && k < v.residual_mm.size(); ++k)
+          if (v.residual_mm[k] > config::VerificationSettings::kShareLevelMm) {
+            in.leftover_part.push_back(T_located_region * v.roi_points_part[k].cast<double>());
+            in.leftover_mm.push_back(v.residual_mm[k]);
+          }
+      }
     inputs.push_back(std::move(in));
   }
 

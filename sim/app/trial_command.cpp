@@ -637,6 +637,7 @@ int trial(const Args& a) {
       }
       ro.before = &out->inspection;
       ro.before_plans = &out->plans;
+      ro.leftover = &*ver;
       if (learning) {  // with this cycle's grind's, and the wear its cut showed
         ro.tool_wear_mm = cell_bias.tool_wear_mm(recipe);
         ro.tool_wear_most_mm = cell_bias.tool_wear_most_mm(recipe);

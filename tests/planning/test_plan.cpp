@@ -459,6 +459,94 @@ TEST(RingPlan, AReGrindFollowsTheFirstPlansRing) {
   EXPECT_FALSE(plan_region(arc, PlannerSettings{}));
 }
 
+// The pump body's boss: its fin ground by a burr's side, edge-on to the camera, so the placement
+// error across the wall is never measured and the loop keeps the whole bound from it (0.5 mm
+// here; the fin 5 mm under the boss's top, the boss block's top 7 mm under the fin). The first grind leaves a fin that wide plus the error. Where the re-scan sees it stand
+// 0.45 mm off the wall, the re-grind comes 0.30 mm nearer (0.45 less the 0.15 mm repeatability);
+// where it stands 0.9 mm off, as near as the allowance; where it sees none, or one stray point, or
+// points off the fin's level, the loop runs where it ran.
+TEST(CirclePlan, AReGrindComesNearerTheWallWhereTheFirstLeftTheFin) {
+  auto scene = make_scene();
+  config::Region boss = scene.regions[2];
+  boss.contact = config::FlashContact::periphery;
+  boss.allowance_mm = 0.12;
+  config::Tool burr;
+  burr.name = "burr-10";
+  burr.shape = config::ToolShape::cylinder;
+  burr.diameter_mm = 10.0;
+  burr.length_mm = 6.0;
+  burr.tcp_mm = {0, 0, 150};
+  RegionInput in = scene.inputs[2];
+  in.region = &boss;
+  in.tool = &burr;
+  // the boss 5 mm above its fin, as on the pump body (the burr's side does not pass its top edge)
+  in.template_sdf = [](const Vec3& p) {
+    return std::min(part_sdf(p), testing::sdf_cylinder(p, 82, -48, 7, 0, 52));
+  };
+  in.placement_bound_mm2 = Vec3(0.5 * 0.5, 0.5 * 0.5, 0.39 * 0.39).asDiagonal();
+  PlannerSettings settings;
+  settings.repeatability_mm = 0.15;
+  const auto first = plan_region(in, settings);
+  ASSERT_TRUE(first) << first.error().message;
+  const auto at = [](double deg, double r, double z) {
+    const double a = deg * std::numbers::pi / 180.0;
+    return Vec3(82.0 + (7.0 + r) * std::cos(a), -48.0 + (7.0 + r) * std::sin(a), z);
+  };
+  RegionInput again = in;
+  again.first = &first.value();
+  again.excess_points_part.clear();  // the re-scan's stub is too thin to read as excess
+  const auto leave = [&](double deg, double r, double z) {
+    again.leftover_part.push_back(at(deg, r, z));
+    again.leftover_mm.push_back(r);
+  };
+  for (double deg = 30.0; deg <= 120.0; deg += 1.0)
+    for (const double r : {0.1, 0.2, 0.35, 0.45}) leave(deg, r, 46.6);
+  for (double deg = 150.0; deg <= 200.0; deg += 1.0) leave(deg, 0.9, 46.6);
+  leave(270.0, 1.5, 46.6);                                               // one stray point
+  for (double deg = 295.0; deg <= 315.0; deg += 1.0) leave(deg, 0.8, 41.6);  // 5 mm under the fin
+  const auto second = plan_region(again, settings);
+  ASSERT_TRUE(second) << second.error().message;
+  ASSERT_EQ(second->points.size(), first->points.size());
+  // the burr's side from the wall, and where round the boss
+  const auto gap = [](const TrajectoryPoint& p) {
+    return std::hypot(p.T_base_tool.position_mm.x() - 82.0, p.T_base_tool.position_mm.y() + 48.0) - 7.0 - 5.0;
+  };
+  const auto deg_of = [](const TrajectoryPoint& p) {
+    const double a = std::atan2(p.T_base_tool.position_mm.y() + 48.0, p.T_base_tool.position_mm.x() - 82.0);
+    return std::fmod(a * 180.0 / std::numbers::pi + 360.0, 360.0);
+  };
+  std::size_t nearer = 0, allowance = 0, same = 0;
+  for (std::size_t i = 1; i + 1 < first->points.size(); ++i) {  // the leads stand off
+    const auto &p1 = first->points[i], &p2 = second->points[i];
+    // the bound, and the back-off's tolerance at most over it
+    EXPECT_GE(gap(p1), 0.5 - 0.01) << i;
+    EXPECT_LE(gap(p1), 0.5 + 0.05) << i;
+    EXPECT_GE(gap(p2), boss.allowance_mm - 0.01) << i;
+    const double deg = deg_of(p1);
+    if (deg > 40.0 && deg < 110.0) {
+      // 0.30 nearer, less where the wall's normal turns from the leftover's (never more)
+      EXPECT_GE(gap(p2), gap(p1) - 0.30 - 0.005) << deg;
+      EXPECT_LE(gap(p2), gap(p1) - 0.30 + 0.02) << deg;
+      ++nearer;
+    } else if (deg > 160.0 && deg < 190.0) {
+      EXPECT_LE(gap(p2), boss.allowance_mm + 0.05) << deg;
+      ++allowance;
+    } else if (deg > 215.0 || deg < 15.0) {
+      EXPECT_NEAR(gap(p2), gap(p1), 0.01) << deg;  // within the back-off search's steps
+      ++same;
+    }
+  }
+  EXPECT_GT(nearer, 5U);
+  EXPECT_GT(allowance, 3U);
+  EXPECT_GT(same, 10U);
+  // nothing the first grind left beyond the repeatability: nothing to grind again
+  again.leftover_part = {at(90.0, 0.1, 46.6), at(91.0, 0.12, 46.6), at(92.0, 0.14, 46.6)};
+  again.leftover_mm = {0.1, 0.12, 0.14};
+  const auto none = plan_region(again, settings);
+  ASSERT_TRUE(none) << none.error().message;
+  EXPECT_TRUE(none->points.empty());
+}
+
 // A camera that sees 240 degrees of the fin, and excess elsewhere in the ROI (the body's form
 // deviation read as material, 15 mm below the parting plane, on the side the fin is not seen):
 // the ring is fitted to the flash on the parting plane only. With the stray points in the

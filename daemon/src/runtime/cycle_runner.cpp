@@ -483,6 +483,7 @@ asio::awaitable<void> Runtime::Impl::run_cycle(Cycle& c) {
     po.before_plans = c.processed ? &c.processed->plans : nullptr;  // a ring's fit on the whole fin
     log->info("cycle {}: re-grind of {} region(s): {}", c.summary.id, po.regions.size(), fmt::join(po.regions, ", "));
     c.first_verification = std::move(v);
+    po.leftover = &*c.first_verification;  // the fin the first grind left shows where the wheel stood
     std::string not_planned;
     auto again = co_await process_views(c, rescan, po, "process regrind", &not_planned);
     // The part stays NOK on its first verification (the cell carries on with the next part)

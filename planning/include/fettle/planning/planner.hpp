@@ -80,6 +80,14 @@ struct RegionInput {
   /// the whole fin: what a grind leaves of a fin is pieces on a short arc (110 of 360 degrees)
   /// that fit no ring, or a wrong one (test RingPlan.AReGrindFollowsTheFirstPlansRing).
   const RegionPlan* first = nullptr;
+  /// A re-grind of a flash ground at the wheel's side (contact = "periphery", with `first`): the
+  /// re-scan's points of the fin the first grind left (part frame) and how far each stands off
+  /// the template. The wheel's side stopped there, so where the fin stands further out than the
+  /// path's repeatability the placement error the bound keeps sideways is seen, and the loop
+  /// comes that much nearer the wall than the bound, never nearer than the allowance
+  /// (test CirclePlan.AReGrindComesNearerTheWallWhereTheFirstLeftTheFin).
+  std::vector<Vec3> leftover_part;
+  std::vector<double> leftover_mm;
   /// The wheel may be up to this much smaller in radius than `tool` says (its wear is known
   /// within a range, process::WearRange): a riser's rows close up for it.
   double tool_worn_more_mm = 0.0;
@@ -98,6 +106,9 @@ struct PlannerSettings {
   /// allowance_mm is smaller is refused (its last pass would grind nearer than the cell can
   /// place the surface).
   double min_clearance_mm = 0.05;
+  /// The robot's path repeatability ([safety] robot_repeatability_mm): a re-grind keeps it where
+  /// the first grind's leftover shows the rest of the placement error (RegionInput::leftover_part).
+  double repeatability_mm = 0.0;
   double air_speed_mm_s = 100.0;    ///< approach / air / retract (clamped to max_speed_mm_s)
   double lead_mm = 5.0;             ///< lead-in / lead-out length of flash loops and passes
   double max_backoff_mm = 10.0;     ///< how far a pose may back off to avoid a gouge

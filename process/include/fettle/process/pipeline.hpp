@@ -152,6 +152,8 @@ struct RegionPlacement {
   Eigen::Matrix3d bound_mm2 = Eigen::Matrix3d::Zero();
 };
 
+struct VerificationResult;
+
 struct ProcessOptions {
   /// Regions to plan (names); empty = all. A re-grind plans only what verify() flagged.
   std::vector<std::string> regions;
@@ -172,6 +174,10 @@ struct ProcessOptions {
   /// A re-grind: the cycle's first plans (ProcessOutput::plans). A ring or circle flash is
   /// ground again along its first plan's ring (planning::RegionInput::first).
   const std::vector<planning::RegionPlan>* before_plans = nullptr;
+  /// A re-grind: the verification that asked for it. The fin a flash's first grind left more
+  /// than the verification's first level (0.3 mm) off the wall shows where the wheel's side
+  /// stood (planning::RegionInput::leftover_part).
+  const VerificationResult* leftover = nullptr;
   /// The wheels' wear as the cell predicts it (process::CellBias::tool_wear): each region is
   /// planned with its tool smaller by the least wear (a worn disc's side is moved in to the
   /// wall by no more than it surely wore), and a riser's rows close up for the most.
