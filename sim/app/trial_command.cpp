@@ -315,28 +315,20 @@ std::string summary_markdown(RunFacts f, const std::map<std::string, TypeStats>&
 }
 
 /// With --errors, a cell file that states no accuracy in [safety] gets what an integrator who
-/// measured this cell would state: the calibration's error at the part (the translation plus
-/// the rotation over its lever: the farthest region's distance from the fixture origin, or the
-/// working distance when it turns about the camera), the robot's accuracy (its path offset), the
-/// TCP's (its length error) and its ISO 9283 repeatability (3 sigma of the path noise). Printed.
+/// measured this cell would state (fettle::sim::stated_accuracy). Printed.
 void state_accuracies(const fettle::config::PartRecipe& recipe, const CellErrors& errors, const ScannerConfig& nominal,
                       fettle::config::SafetySection& safety) {
   if (fettle::process::states_accuracy(safety)) return;
-  const auto& b = errors.budget;
-  double lever_mm = 0.0;
-  for (const auto& r : recipe.regions) {
-    const fettle::Vec3 at(r.roi_center_mm[0], r.roi_center_mm[1], r.roi_center_mm[2]);
-    lever_mm = std::max(lever_mm, b.hand_eye_pivot == "camera" ? (at - nominal.T_base_camera(0.0).translation()).norm()
-                                                               : at.norm());
-  }
-  safety.calibration_accuracy_mm = b.hand_eye_mm + fettle::deg_to_rad(b.hand_eye_deg) * lever_mm;
-  safety.robot_accuracy_mm = b.path_bias_mm;  // drawn in a random direction
-  safety.tcp_accuracy_mm = b.tcp_length_mm;    // along the tool's axis
-  safety.robot_repeatability_mm = 3.0 * b.path_noise_mm;
-  std::printf("the cell states (its file states none): calibration_accuracy_mm %.3f (over a %.0f mm lever), "
-              "robot_accuracy_mm %.3f, tcp_accuracy_mm %.3f, robot_repeatability_mm %.3f\n",
-              safety.calibration_accuracy_mm, lever_mm, safety.robot_accuracy_mm, safety.tcp_accuracy_mm,
-              safety.robot_repeatability_mm);
+  const auto a = fettle::sim::stated_accuracy(recipe, errors.budget, nominal);
+  safety.calibration_accuracy_mm = a.calibration_mm();
+  safety.robot_accuracy_mm = a.robot_mm;
+  safety.tcp_accuracy_mm = a.tcp_mm;
+  safety.robot_repeatability_mm = a.repeatability_mm;
+  std::printf("the cell states (its file states none): calibration_accuracy_mm %.3f (the hand-eye's %.3f over a %.0f mm "
+              "lever, the scanner's intrinsics %.3f, the slide %.3f), robot_accuracy_mm %.3f, tcp_accuracy_mm %.3f, "
+              "robot_repeatability_mm %.3f\n",
+              safety.calibration_accuracy_mm, a.hand_eye_mm, a.lever_mm, a.scanner_mm, a.slide_mm,
+              safety.robot_accuracy_mm, safety.tcp_accuracy_mm, safety.robot_repeatability_mm);
   std::fflush(stdout);
 }
 

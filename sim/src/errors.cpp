@@ -158,6 +158,28 @@ CellCapture capture_as_cell(const Scanner& scanner, const ScannerConfig& nominal
   return out;
 }
 
+StatedAccuracy stated_accuracy(const config::PartRecipe& recipe, const config::ErrorBudget& budget,
+                               const ScannerConfig& nominal) {
+  StatedAccuracy a;
+  for (const auto& r : recipe.regions) {
+    const Vec3 at(r.roi_center_mm[0], r.roi_center_mm[1], r.roi_center_mm[2]);
+    a.lever_mm = std::max(a.lever_mm, budget.hand_eye_pivot == "camera"
+                                          ? (at - nominal.T_base_camera(0.0).translation()).norm()
+                                          : at.norm());
+    for (const double slide : nominal.photo_positions_mm) {
+      const Vec3 p = nominal.T_base_camera(slide).inverse() * at;  // camera frame, z along the axis
+      a.scanner_mm = std::max(a.scanner_mm, budget.intrinsics_center_px * p.z() / nominal.intrinsics.fx +
+                                                budget.intrinsics_focal_pct / 100.0 * p.head<2>().norm());
+    }
+  }
+  a.hand_eye_mm = budget.hand_eye_mm + budget.hand_eye_deg * std::numbers::pi / 180.0 * a.lever_mm;
+  a.slide_mm = budget.slide_repeatability_mm;
+  a.robot_mm = budget.path_bias_mm;
+  a.tcp_mm = budget.tcp_length_mm;
+  a.repeatability_mm = 3.0 * budget.path_noise_mm;
+  return a;
+}
+
 void apply_to_grinding(const CellErrors& errors, GrindOptions& options) {
   options.path_noise_mm = errors.budget.path_noise_mm;
   options.path_bias_mm = errors.path_bias_mm;

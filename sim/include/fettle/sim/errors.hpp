@@ -65,6 +65,26 @@ struct CellCapture {
 CellCapture capture_as_cell(const Scanner& scanner, const ScannerConfig& nominal, const CellErrors& errors,
                             const Casting& casting, double slide_mm, std::uint64_t seed, std::size_t view);
 
+/// What an integrator who measured a cell with this budget's errors would state as its
+/// accuracies ([safety]; docs/compensation.md, "What every path keeps"): each the error's
+/// largest size at the recipe's regions, the calibration's as an end-to-end check of the cell
+/// sees it (the scan's error at the part, whatever part of the chain it comes from).
+struct StatedAccuracy {
+  double lever_mm = 0.0;     ///< the farthest region from the hand-eye rotation's pivot
+  double hand_eye_mm = 0.0;  ///< the hand-eye's translation plus its rotation over the lever
+  /// The scanner's intrinsics: the principal point's error over a pixel's footprint at the
+  /// region plus the focal length's share of its distance from the optical axis, at the worst
+  /// region and view (the same for every casting, a calibration error like the hand-eye's).
+  double scanner_mm = 0.0;
+  double slide_mm = 0.0;  ///< the slide's repeatability
+  [[nodiscard]] double calibration_mm() const { return hand_eye_mm + scanner_mm + slide_mm; }
+  double robot_mm = 0.0;          ///< the path's offset (drawn in a random direction)
+  double tcp_mm = 0.0;            ///< the TCP's length error (along the tool's axis)
+  double repeatability_mm = 0.0;  ///< ISO 9283: 3 sigma of the path's noise
+};
+StatedAccuracy stated_accuracy(const config::PartRecipe& recipe, const config::ErrorBudget& budget,
+                               const ScannerConfig& nominal);
+
 /// The grinding options the budget implies (path noise, the cell's path bias, TCP length error).
 void apply_to_grinding(const CellErrors& errors, GrindOptions& options);
 
