@@ -101,7 +101,11 @@ inline Scene make_scene(double pitch_mm = 0.5, const Transform& T_base_part = Tr
   ball.shape = config::ToolShape::ball;
   ball.diameter_mm = 12.0;
   ball.tcp_mm = {0, 0, 165};
-  s.tools = {disc, ball};
+  config::Tool burr = disc;  // a small cylindrical burr: its side runs round the boss
+  burr.name = "burr-10";
+  burr.diameter_mm = 10.0;
+  burr.tcp_mm = {0, 0, 150};
+  s.tools = {disc, ball, burr};
 
   config::Region ring;
   ring.name = "flange-ring";

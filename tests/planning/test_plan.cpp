@@ -470,15 +470,10 @@ TEST(CirclePlan, AReGrindComesNearerTheWallWhereTheFirstLeftTheFin) {
   config::Region boss = scene.regions[2];
   boss.contact = config::FlashContact::periphery;
   boss.allowance_mm = 0.12;
-  config::Tool burr;
-  burr.name = "burr-10";
-  burr.shape = config::ToolShape::cylinder;
-  burr.diameter_mm = 10.0;
-  burr.length_mm = 6.0;
-  burr.tcp_mm = {0, 0, 150};
   RegionInput in = scene.inputs[2];
   in.region = &boss;
-  in.tool = &burr;
+  in.tool = &scene.tools.at(2);
+  ASSERT_EQ(in.tool->name, "burr-10");
   // the boss 5 mm above its fin, as on the pump body (the burr's side does not pass its top edge)
   in.template_sdf = [](const Vec3& p) {
     return std::min(part_sdf(p), testing::sdf_cylinder(p, 82, -48, 7, 0, 52));
