@@ -232,7 +232,8 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
   // riser by the faces around it), at the re-scan point placed where the camera saw it in the
   // first inspection's frame of the region (the same camera saw both scans, so its calibration
   // and smooth depth errors cancel, and the re-scan's own located pose, which the removed
-  // material moves, does not enter). The first scan's own points around a point are no face
+  // material moves, does not enter), by how much the template's face there points up (a wall
+  // in the re-scan's own frame). The first scan's own points around a point are no face
   // where material lower than twice the form deviation stood: on the low side of a tilted riser
   // they are 0.5-1 mm of it, and its ground face would read as a 1 mm gouge. Beyond (a tool's
   // footprint outside its ROI, where no material stands; the nearest node's offset 9 mm out on a
@@ -271,8 +272,12 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       const Vec3 q1 = T_first_region_rescan[i] * p;
       const auto& f = *form[i];
       if (const auto local = f.over_nodes(q1.x(), q1.y()) ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
-        const double up = upness(q1);
-        return loaded.template_sdf(q1) - up * held(*local);
+        // an upward face is judged where the first scan saw the casting's face; a wall, which the
+        // form does not move, in the re-scan's own frame: the first inspection's is pulled
+        // sideways by the flash it saw, and a boss's stub read 0.18 % > 0.5 mm there against
+        // 0.31 % in its own (test Pipeline.VerifySeesTheStubOfAFinTheGrindLeftBesideTheBoss)
+        const double up = upness(q1), own = loaded.template_sdf(q);
+        return own + up * (loaded.template_sdf(q1) - held(*local) - own);
       }
     }
     const double d = loaded.template_sdf(q), up = upness(q);

@@ -423,10 +423,10 @@ TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
 
 // A burr's side that went round the boss 0.6 mm off its wall leaves a stub of the fin two or
 // three pixels wide, between the boss's top 5 mm above it and the tilted face 2-5 mm below: the
-// verification sees it (REGRIND, more than 0.1 % of the boss's points > 0.5 mm), against the
-// template and against the casting's own face as the first scan saw it (as the cell verifies).
-// The latter reads less of it (0.18 % against 0.31 %), and a stub on a short arc reads OK where
-// the simulator's account finds 0.4-0.6 % > 0.5 mm: issue 34's notes.
+// verification sees it (REGRIND, more than 0.1 % of the boss's points > 0.5 mm), judged against
+// the casting's own face as the first scan saw it (as the cell verifies) as much as against the
+// template. Judged in the first inspection's frame, which the flash it saw pulls sideways, the
+// same stub read 0.18 % against 0.31 %, and a stub on a short arc read OK.
 TEST_F(Pipeline, VerifySeesTheStubOfAFinTheGrindLeftBesideTheBoss) {
   auto casting = sim::Casting::make(loaded_->recipe, 5);
   sim::ScannerConfig full;
@@ -470,6 +470,9 @@ TEST_F(Pipeline, VerifySeesTheStubOfAFinTheGrindLeftBesideTheBoss) {
   std::printf("boss: %.3f %% > 0.5 mm against the casting's face, %.3f %% against the template\n",
               boss->share_over_0_5_pct, against_template->share_over_0_5_pct);
   EXPECT_EQ(against_template->verdict, Verdict::regrind) << against_template->reason;
+  // a wall is judged in the re-scan's own frame either way (the form moves faces, not walls)
+  EXPECT_NEAR(boss->share_over_0_5_pct, against_template->share_over_0_5_pct,
+              0.2 * against_template->share_over_0_5_pct);
 }
 
 // A region whose ROI the verification scan does not see is not judged OK on no points: a
