@@ -274,8 +274,9 @@ Result<VerificationResult> verify(const LoadedRecipe& loaded, const config::Cell
       if (const auto local = f.over_nodes(q1.x(), q1.y()) ? f.local_at(q1.x(), q1.y()) : std::nullopt) {
         // an upward face is judged where the first scan saw the casting's face; a wall, which the
         // form does not move, in the re-scan's own frame: the first inspection's is pulled
-        // sideways by the flash it saw, and a boss's stub read 0.18 % > 0.5 mm there against
-        // 0.31 % in its own (test Pipeline.VerifySeesTheStubOfAFinTheGrindLeftBesideTheBoss)
+        // sideways by the flash it saw (there a boss's 0.6 mm stub reads 0.18 % > 0.5 mm, in its
+        // own frame 0.31 %, as against the template: test
+        // Pipeline.VerifySeesTheStubOfAFinTheGrindLeftBesideTheBoss)
         const double up = upness(q1), own = loaded.template_sdf(q);
         return own + up * (loaded.template_sdf(q1) - held(*local) - own);
       }

@@ -425,8 +425,8 @@ TEST_F(Pipeline, VerifyDropsTheReScansFlyingPixelsBesideTheBoss) {
 // three pixels wide, between the boss's top 5 mm above it and the tilted face 2-5 mm below: the
 // verification sees it (REGRIND, more than 0.1 % of the boss's points > 0.5 mm), judged against
 // the casting's own face as the first scan saw it (as the cell verifies) as much as against the
-// template. Judged in the first inspection's frame, which the flash it saw pulls sideways, the
-// same stub read 0.18 % against 0.31 %, and a stub on a short arc read OK.
+// template. Judged wholly in the first inspection's frame, which the flash it saw pulls sideways,
+// the same stub reads 0.18 % against 0.31 %, and a stub on a short arc reads OK.
 TEST_F(Pipeline, VerifySeesTheStubOfAFinTheGrindLeftBesideTheBoss) {
   auto casting = sim::Casting::make(loaded_->recipe, 5);
   sim::ScannerConfig full;

@@ -85,7 +85,9 @@ struct RegionInput {
   /// the template. The wheel's side stopped there, so where the fin stands further out than the
   /// path's repeatability the placement error the bound keeps sideways is seen, and the loop
   /// comes that much nearer the wall than the bound, never nearer than the allowance
-  /// (test CirclePlan.AReGrindComesNearerTheWallWhereTheFirstLeftTheFin).
+  /// (test CirclePlan.AReGrindComesNearerTheWallWhereTheFirstLeftTheFin). It takes the frames the
+  /// part was located in for the first grind, the verification and this plan to agree: a
+  /// registration that differs between them along the wall's normal moves the wheel that much.
   std::vector<Vec3> leftover_part;
   std::vector<double> leftover_mm;
   /// The wheel may be up to this much smaller in radius than `tool` says (its wear is known
