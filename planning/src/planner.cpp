@@ -1054,23 +1054,17 @@ RegionInput kept_from_placement(const RegionInput& in, const LeftoverFin* fin = 
   const double most = largest - allowance;
   const auto base = in.template_sdf;
   std::function<double(const Vec3&)> extra;
-  if (fin != nullptr && !fin->empty()) {
-    extra = [base, M, allowance, most, fin = *fin](const Vec3& p) {
-      Vec3 g = sdf_gradient(base, p, 0.25);
-      const double n = g.norm();
-      if (!(n > 1e-9)) return most;
-      g /= n;
-      return std::max(0.0, fin.bound_mm(p, g, M) - allowance);
-    };
-  } else if (largest - smallest < 1e-6) {
+  const bool beside_fin = fin != nullptr && !fin->empty();
+  if (!beside_fin && largest - smallest < 1e-6) {
     extra = [most](const Vec3&) { return most; };
   } else {
-    extra = [base, M, allowance, most](const Vec3& p) {
+    extra = [base, M, allowance, most, fin = beside_fin ? std::optional<LeftoverFin>(*fin) : std::nullopt](const Vec3& p) {
       Vec3 g = sdf_gradient(base, p, 0.25);
       const double n = g.norm();
       if (!(n > 1e-9)) return most;
       g /= n;
-      return std::max(0.0, std::sqrt(std::max(0.0, g.dot(M * g))) - allowance);
+      const double bound = fin ? fin->bound_mm(p, g, M) : std::sqrt(std::max(0.0, g.dot(M * g)));
+      return std::max(0.0, bound - allowance);
     };
   }
   RegionInput out = in;
